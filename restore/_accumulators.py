@@ -1,0 +1,114 @@
+"""Streaming per-lane sums for the regenerative ratio estimator: constant memory in the run length."""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Int
+
+#: Tour durations are binned on a log10 scale over this range for the tail diagnostics.
+HISTOGRAM_RANGE = (-6.0, 6.0)
+HISTOGRAM_BINS = 96
+
+
+class LaneSums(NamedTuple):
+    """Running sums of one lane (a leading lane axis when batched).
+
+    Per complete tour `k` with integral `F_k = sum w f(x)` and duration `T_k = sum w`,
+    the sums `F, F^2, F T, T, T^2` and the count are all the ratio estimator and its
+    standard error need. The open tour's partial sums wait until the tour ends. The
+    `all_*` sums cover every step, complete tours or not (for lane-based estimates).
+    """
+
+    open_f: Float[Array, " m"]
+    open_t: Float[Array, ""]
+    sum_f: Float[Array, " m"]
+    sum_f2: Float[Array, " m"]
+    sum_ft: Float[Array, " m"]
+    sum_t: Float[Array, ""]
+    sum_t2: Float[Array, ""]
+    num_tours: Int[Array, ""]
+    open_steps: Int[Array, ""]
+    max_tour: Float[Array, ""]
+    all_f: Float[Array, " m"]
+    all_f2: Float[Array, " m"]
+    all_t: Float[Array, ""]
+    skip_first: Bool[Array, ""]
+    log_iw_sum: Float[Array, ""]
+    log_iw_sum2: Float[Array, ""]
+    num_iw: Int[Array, ""]
+    num_invalid: Int[Array, ""]
+    num_uncovered: Int[Array, ""]
+    num_accepted: Int[Array, ""]
+    num_regenerations: Int[Array, ""]
+
+
+def init_lane_sums(num_lanes: int, size: int, dtype, skip_first: Array) -> LaneSums:
+    """Zero sums; `skip_first` marks lanes that did not start at a regeneration."""
+    z = jnp.zeros((num_lanes,), dtype)
+    zm = jnp.zeros((num_lanes, size), dtype)
+    zi = jnp.zeros((num_lanes,), jnp.int32)
+    ninf = jnp.full((num_lanes,), -jnp.inf, dtype)
+    return LaneSums(zm, z, zm, zm, zm, z, z, zi, zi, z, zm, zm, z, skip_first, ninf, ninf, zi, zi, zi, zi, zi)
+
+
+def update_lane_sums(sums: LaneSums, values: Array, weight: Array, info) -> LaneSums:
+    """Add one step of every lane: `values` `(L, m)` at the held states, weights `(L,)`."""
+    w = weight[:, None]
+    wf = jnp.where(w > 0, w * values, 0.0)
+    wf2 = jnp.where(w > 0, w * values**2, 0.0)
+    open_f = sums.open_f + wf
+    open_t = sums.open_t + weight
+    end = info.regenerated
+    count = end & ~sums.skip_first
+    c = count[:, None]
+    log_iw = getattr(info, "log_importance_weight", None)
+    if log_iw is None:
+        log_iw = jnp.full_like(weight, -jnp.inf)
+    zero = jnp.zeros((), jnp.int32)
+    return LaneSums(
+        open_f=jnp.where(end[:, None], 0.0, open_f),
+        open_t=jnp.where(end, 0.0, open_t),
+        sum_f=sums.sum_f + jnp.where(c, open_f, 0.0),
+        sum_f2=sums.sum_f2 + jnp.where(c, open_f**2, 0.0),
+        sum_ft=sums.sum_ft + jnp.where(c, open_f * open_t[:, None], 0.0),
+        sum_t=sums.sum_t + jnp.where(count, open_t, 0.0),
+        sum_t2=sums.sum_t2 + jnp.where(count, open_t**2, 0.0),
+        num_tours=sums.num_tours + count.astype(jnp.int32),
+        open_steps=jnp.where(end, 0, sums.open_steps + 1),
+        max_tour=jnp.maximum(sums.max_tour, jnp.where(count, open_t, 0.0)),
+        all_f=sums.all_f + wf,
+        all_f2=sums.all_f2 + wf2,
+        all_t=sums.all_t + weight,
+        skip_first=sums.skip_first & ~end,
+        log_iw_sum=jnp.logaddexp(sums.log_iw_sum, log_iw),
+        log_iw_sum2=jnp.logaddexp(sums.log_iw_sum2, 2.0 * log_iw),
+        num_iw=sums.num_iw + end.astype(jnp.int32),
+        num_invalid=sums.num_invalid + info.invalid.astype(jnp.int32),
+        num_uncovered=sums.num_uncovered + getattr(info, "uncovered", jnp.zeros_like(end)).astype(jnp.int32),
+        num_accepted=sums.num_accepted + info.accepted.astype(jnp.int32),
+        num_regenerations=sums.num_regenerations + jnp.where(end, 1, zero),
+    )
+
+
+def completed_durations(sums_before: LaneSums, weight: Array, info) -> tuple[Array, Array]:
+    """Durations of the tours that end at this step (and a mask of which lanes count them)."""
+    count = info.regenerated & ~sums_before.skip_first
+    return sums_before.open_t + weight, count
+
+
+def update_histogram(hist: tuple[Array, Array], durations: Array, mask: Array) -> tuple[Array, Array]:
+    """Add completed tour durations to a log10-binned (count, total time) histogram."""
+    counts, times = hist
+    lo, hi = HISTOGRAM_RANGE
+    safe = jnp.where(durations > 0, durations, 1.0)
+    position = (jnp.log10(safe) - lo) / (hi - lo) * HISTOGRAM_BINS
+    index = jnp.clip(jnp.floor(position), 0, HISTOGRAM_BINS - 1).astype(jnp.int32)
+    counts = counts.at[index].add(mask.astype(counts.dtype))
+    times = times.at[index].add(jnp.where(mask, durations, 0.0).astype(times.dtype))
+    return counts, times
+
+
+def init_histogram(dtype) -> tuple[Array, Array]:
+    return jnp.zeros((HISTOGRAM_BINS,), dtype), jnp.zeros((HISTOGRAM_BINS,), dtype)

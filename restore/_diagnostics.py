@@ -1,0 +1,95 @@
+"""Tour statistics: is the tour-length distribution well behaved?"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+#: A tour-length distribution is flagged as heavy-tailed when the longest 1% of tours hold
+#: more than this share of the total time (exponential tour lengths give about 5.6%)...
+LONGEST_SHARE_LIMIT = 0.3
+#: ...or when the effective number of tours `(sum T)^2 / sum T^2` falls below this share of
+#: the tour count (exponential tour lengths give about one half).
+EFFECTIVE_SHARE_LIMIT = 0.1
+
+
+class TourStatistics(NamedTuple):
+    """Summary of the complete tours of a run.
+
+    Attributes:
+        num_tours: complete tours over all lanes.
+        mean_duration: mean tour duration (in local-move time units).
+        mean_duration_se: its standard error.
+        expected_duration: `1 / c`: the requested `tour_length`, or `Z_hat / c_tilde`
+            with the run's importance estimate of `Z` when the raw `log_rate` was given.
+        effective_num_tours: `(sum T)^2 / sum T^2`, how many equally long tours carry the
+            same information.
+        longest_share: share of the total tour time held by the longest 1% of tours
+            (from a log-binned histogram: exact to a bin, about 30%, in duration).
+        max_duration: the longest complete tour.
+        incomplete_fraction: share of the simulated time in tours that were still open at
+            the end (left out of tour-based estimates).
+        heavy_tailed: the warning flag (see `LONGEST_SHARE_LIMIT`, `EFFECTIVE_SHARE_LIMIT`).
+    """
+
+    num_tours: int
+    mean_duration: float
+    mean_duration_se: float
+    expected_duration: float
+    effective_num_tours: float
+    longest_share: float
+    max_duration: float
+    incomplete_fraction: float
+    heavy_tailed: bool
+
+
+def longest_share(counts: np.ndarray, times: np.ndarray, fraction: float = 0.01) -> float:
+    """Share of total time in the longest `fraction` of tours, from a duration histogram."""
+    total_time, total_count = times.sum(), counts.sum()
+    if total_count == 0 or total_time == 0:
+        return math.nan
+    wanted = max(1.0, math.ceil(fraction * total_count))
+    taken_count = taken_time = 0.0
+    for c, t in zip(counts[::-1], times[::-1], strict=True):
+        if c == 0:
+            continue
+        if taken_count + c >= wanted:
+            taken_time += t * (wanted - taken_count) / c
+            break
+        taken_count += c
+        taken_time += t
+    return float(taken_time / total_time)
+
+
+def tour_statistics(
+    sum_t: np.ndarray,
+    sum_t2: np.ndarray,
+    num_tours: np.ndarray,
+    max_tour: np.ndarray,
+    all_t: np.ndarray,
+    histogram: tuple[np.ndarray, np.ndarray],
+    expected_duration: float,
+) -> TourStatistics:
+    n = int(np.sum(num_tours))
+    T, T2 = float(np.sum(sum_t, dtype=np.float64)), float(np.sum(sum_t2, dtype=np.float64))
+    total = float(np.sum(all_t, dtype=np.float64))
+    if n == 0:
+        return TourStatistics(0, math.nan, math.nan, expected_duration, 0.0, math.nan, 0.0, 1.0, False)
+    mean = T / n
+    var = max(T2 / n - mean**2, 0.0) * n / max(n - 1, 1)
+    eff = T**2 / T2 if T2 > 0 else 0.0
+    share = longest_share(*histogram)
+    heavy = n >= 20 and (share > LONGEST_SHARE_LIMIT or eff < EFFECTIVE_SHARE_LIMIT * n)
+    return TourStatistics(
+        num_tours=n,
+        mean_duration=mean,
+        mean_duration_se=math.sqrt(var / n),
+        expected_duration=expected_duration,
+        effective_num_tours=eff,
+        longest_share=share,
+        max_duration=float(np.max(max_tour)),
+        incomplete_fraction=max(0.0, 1.0 - T / total) if total > 0 else 1.0,
+        heavy_tailed=bool(heavy),
+    )

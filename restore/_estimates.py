@@ -1,0 +1,69 @@
+"""Ratio estimators and their standard errors, from summed tours or lanes (numpy, float64)."""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+
+class Estimate(NamedTuple):
+    """An estimate with its standard error (arrays of the observable's shape)."""
+
+    value: np.ndarray
+    standard_error: np.ndarray
+
+    def z_score(self, truth) -> np.ndarray:
+        """`(value - truth) / standard_error`."""
+        return (self.value - np.asarray(truth)) / self.standard_error
+
+    def __repr__(self) -> str:
+        fmt = {"float_kind": lambda v: f"{v:.4g}"}
+        value = np.array2string(np.asarray(self.value), formatter=fmt)
+        error = np.array2string(np.asarray(self.standard_error), formatter=fmt)
+        return f"{type(self).__name__}(value={value}, standard_error={error})"
+
+
+def tour_ratio(sum_f, sum_f2, sum_ft, sum_t, sum_t2, num_tours) -> Estimate:
+    """Regenerative ratio estimator `sum F / sum T` over i.i.d. tours.
+
+    Standard error `sqrt(sum (F - pi_hat T)^2) / sum T`, expanded in the running sums,
+    with the `n / (n - 1)` small-sample factor.
+    """
+    n = float(np.sum(num_tours))
+    if n < 2:
+        raise ValueError(
+            f"only {int(n)} complete tour(s): tour-based estimates need at least 2; run more steps or "
+            "lanes, shorten the tours, or use method='lanes'"
+        )
+    F, F2, FT = (np.sum(np.asarray(a, np.float64), axis=0) for a in (sum_f, sum_f2, sum_ft))
+    T, T2 = float(np.sum(np.asarray(sum_t, np.float64))), float(np.sum(np.asarray(sum_t2, np.float64)))
+    value = F / T
+    ss = np.maximum(F2 - 2.0 * value * FT + value**2 * T2, 0.0)
+    return Estimate(value, np.sqrt(ss * n / (n - 1.0)) / T)
+
+
+def lane_ratio(all_f, all_t) -> Estimate:
+    """Ratio estimator over independent lanes: each lane's weighted sums are one replicate."""
+    f = np.asarray(all_f, np.float64)
+    t = np.asarray(all_t, np.float64)
+    lanes = t.shape[0]
+    if lanes < 2:
+        raise ValueError("lane-based standard errors need at least 2 lanes")
+    T = t.sum()
+    value = f.sum(axis=0) / T
+    resid = f - value * t.reshape((-1,) + (1,) * (f.ndim - 1))
+    return Estimate(value, np.sqrt(np.sum(resid**2, axis=0) * lanes / (lanes - 1.0)) / T)
+
+
+def log_mean_exp(log_sum: np.ndarray, log_sum2: np.ndarray, count: float) -> tuple[float, float]:
+    """`log` of a mean from log-sums of values and squares, with the standard error of that log."""
+    if count < 2:
+        raise ValueError("need at least 2 importance draws")
+    ls = np.logaddexp.reduce(np.asarray(log_sum, np.float64))
+    ls2 = np.logaddexp.reduce(np.asarray(log_sum2, np.float64))
+    log_mean = ls - math.log(count)
+    # relative variance of the mean: (E w^2 / (E w)^2 - 1) / n
+    rel = math.exp(ls2 - math.log(count) - 2.0 * log_mean) - 1.0
+    return float(log_mean), math.sqrt(max(rel, 0.0) / (count - 1.0))

@@ -1,0 +1,122 @@
+"""The Metropolis-Hastings baseline with a mixture of small (local) and large (independent) steps."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import ClassVar, NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, PRNGKeyArray
+
+from ._point import Point, evaluate
+from ._validation import check_logdensity, check_position
+from .local import AbstractLocalKernel
+from .local._base import metropolis_accept
+from .regeneration import AbstractRegeneration
+
+
+class MixtureMHState(NamedTuple):
+    """State of one MH lane: the point and `log u(x)` needed by the independence step."""
+
+    position: Float[Array, " d"]
+    logdensity: Float[Array, ""]
+    logdensity_grad: Float[Array, " d"] | None
+    log_regeneration_density: Float[Array, ""]
+
+
+class MixtureMHInfo(NamedTuple):
+    """What one MH step did. Holding times are 1: this is a discrete-time chain."""
+
+    holding_time: Float[Array, ""]
+    expected_holding_time: Float[Array, ""]
+    regenerated: Bool[Array, ""]
+    accepted: Bool[Array, ""]
+    acceptance_probability: Float[Array, ""]
+    invalid: Bool[Array, ""]
+    large_step: Bool[Array, ""]
+
+
+class MixtureMH(eqx.Module):
+    """Metropolis-Hastings with a mixture of local moves and independent large steps.
+
+    With probability `large_step_probability` the step proposes a fresh draw `y ~ nu`
+    and accepts it with probability `min(1, p(y) u(x) / (p(x) u(y)))`; otherwise it makes
+    one move of the local kernel. Both kernels leave the target invariant, so their
+    mixture does. This is the chain that jump Restore is compared with when both use the
+    same local kernel and `nu` (the paper's section 6.1: MH tours end at accepted large
+    steps). Each step costs one new density evaluation, like a jump-Restore step.
+
+    Arguments:
+        logdensity: unnormalised log density of one point `(d,)`.
+        local: the local (small-step) kernel.
+        regeneration: the large-step distribution `nu`.
+        large_step_probability: probability in `[0, 1]` of a large step.
+    """
+
+    logdensity: Callable[[Array], Array] = eqx.field(static=True)
+    local: AbstractLocalKernel
+    regeneration: AbstractRegeneration
+    large_step_probability: Float[Array, ""]
+
+    is_regenerative: ClassVar[bool] = False
+
+    def __init__(self, logdensity, local, regeneration, large_step_probability: float = 0.1):
+        if not isinstance(local, AbstractLocalKernel):
+            raise TypeError(f"local must be a restore.local kernel, got {type(local).__name__}")
+        if not isinstance(regeneration, AbstractRegeneration):
+            raise TypeError(f"regeneration must be a restore.regeneration distribution, got {type(regeneration).__name__}")
+        q = float(large_step_probability)
+        if not 0.0 <= q <= 1.0:
+            raise ValueError(f"large_step_probability must be in [0, 1], got {large_step_probability!r}")
+        check_logdensity(logdensity, regeneration.dim)
+        local.check_dim(regeneration.dim)
+        self.logdensity = logdensity
+        self.local = local
+        self.regeneration = regeneration
+        self.large_step_probability = jnp.asarray(q)
+
+    @property
+    def dim(self) -> int:
+        return self.regeneration.dim
+
+    def init(self, key: PRNGKeyArray, position: Array | None = None) -> MixtureMHState:
+        """Start a chain at `position`, or at a draw of `nu` (the same start information as Restore)."""
+        if position is None:
+            position = self.regeneration.sample(key)
+        else:
+            position = check_position(position, self.dim)
+        point, _ = evaluate(self.logdensity, position, self.local.uses_gradient)
+        return MixtureMHState(point.position, point.logdensity, point.grad, self.regeneration.log_prob(position))
+
+    def step(self, key: PRNGKeyArray, state: MixtureMHState) -> tuple[MixtureMHState, MixtureMHInfo]:
+        """One MH step: a large step with probability `q`, else a local move."""
+        k_choice, k_propose, k_accept, k_regen = jax.random.split(key, 4)
+        dtype = state.logdensity.dtype
+        large = jax.random.uniform(k_choice, dtype=dtype) < self.large_step_probability
+
+        point = Point(state.position, state.logdensity, state.logdensity_grad)
+        candidate, aux = self.local.propose(k_propose, point, self.logdensity)
+        fresh = self.regeneration.sample(k_regen).astype(candidate.dtype)
+        evaluated, invalid = evaluate(self.logdensity, jnp.where(large, fresh, candidate), self.local.uses_gradient)
+        log_u_new = self.regeneration.log_prob(evaluated.position)
+
+        local_point, local_info = self.local.accept(k_accept, point, evaluated, aux)
+        log_ratio = evaluated.logdensity - state.logdensity + state.log_regeneration_density - log_u_new
+        global_point, global_info = metropolis_accept(k_accept, point, evaluated, log_ratio)
+
+        new_point = jax.tree.map(lambda a, b: jnp.where(large, a, b), global_point, local_point)
+        accepted = jnp.where(large, global_info.accepted, local_info.accepted)
+        new_log_u = jnp.where(accepted, log_u_new, state.log_regeneration_density)
+        one = jnp.ones((), dtype)
+        info = MixtureMHInfo(
+            holding_time=one,
+            expected_holding_time=one,
+            regenerated=jnp.zeros((), bool),
+            accepted=accepted,
+            acceptance_probability=jnp.where(large, global_info.acceptance_probability, local_info.acceptance_probability),
+            invalid=invalid,
+            large_step=large,
+        )
+        return MixtureMHState(new_point.position, new_point.logdensity, new_point.grad, new_log_u), info

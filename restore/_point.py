@@ -1,0 +1,54 @@
+"""A position together with its evaluated log density (and gradient when needed)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float
+
+
+class Point(NamedTuple):
+    """A position with its log density, and the gradient for gradient-based kernels.
+
+    `logdensity` is `-inf` for a point of zero density, and also for a point where the
+    user's log density returned NaN or `+inf` (see `evaluate`). `grad` is `None` when
+    no kernel needs it.
+    """
+
+    position: Float[Array, " d"]
+    logdensity: Float[Array, ""]
+    grad: Float[Array, " d"] | None
+
+
+def evaluate(
+    logdensity_fn: Callable[[Array], Array], position: Array, with_grad: bool
+) -> tuple[Point, Bool[Array, ""]]:
+    """Evaluate the log density (and gradient) at one position, made safe.
+
+    A NaN or `+inf` log density, or a non-finite gradient, is an *invalid* evaluation:
+    the point gets log density `-inf` (zero density: a local move there is rejected, a
+    tour started there is killed at once with weight zero) and a zero gradient, and the
+    returned flag is true so that callers can count it. No NaN travels further.
+
+    Arguments:
+        logdensity_fn: log density of one point of shape `(d,)`, returning a scalar.
+        position: the point.
+        with_grad: also compute the gradient (one `value_and_grad` call).
+
+    Returns:
+        The evaluated `Point` and a boolean flag that is true when the evaluation was invalid.
+    """
+    if with_grad:
+        logp, grad = jax.value_and_grad(logdensity_fn)(position)
+        bad = jnp.isnan(logp) | (logp == jnp.inf) | ~jnp.all(jnp.isfinite(grad))
+        bad = bad & ~(logp == -jnp.inf)
+        grad = jnp.where(jnp.isfinite(logp) & ~bad, grad, jnp.zeros_like(grad))
+    else:
+        logp = logdensity_fn(position)
+        bad = jnp.isnan(logp) | (logp == jnp.inf)
+        grad = None
+    logp = jnp.where(bad, -jnp.inf, logp)
+    return Point(position, logp, grad), bad

@@ -1,0 +1,102 @@
+"""Killing-rate arithmetic in log space, and the pilot that turns a tour length into a rate."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float, PRNGKeyArray
+
+
+def log_kill_rate(log_rate: Array, log_regeneration: Array, logdensity: Array) -> Array:
+    """`log gamma = log c_tilde + log u - log p`, with the edge cases made explicit.
+
+    Zero target density gives `+inf` (kill at once), whatever `u` is; zero regeneration
+    density where the target is positive gives `-inf` (never killed there).
+    """
+    value = log_rate + log_regeneration - logdensity
+    value = jnp.where(logdensity == -jnp.inf, jnp.inf, value)
+    return jnp.where(jnp.isnan(value), -jnp.inf, value)
+
+
+def kill_log_probability(log_gamma: Array, log_local_rate: Array) -> Array:
+    """`log(gamma / (r + gamma))`, exact for `gamma` in `[0, inf]` (never NaN)."""
+    return jax.nn.log_sigmoid(log_gamma - log_local_rate)
+
+
+def log_total_rate(log_gamma: Array, log_local_rate: Array) -> Array:
+    """`log(r + gamma)`; the mean holding time is `exp(-log_total_rate)`."""
+    return jnp.logaddexp(log_local_rate, log_gamma)
+
+
+class PilotEstimate(NamedTuple):
+    """Importance-sampling estimate of `log Z` from draws of the regeneration distribution.
+
+    Attributes:
+        log_z: `log` of the mean of `p(y) / u(y)`, `y ~ nu`.
+        relative_standard_error: standard error of `Z_hat / Z` (delta method).
+        effective_sample_size: `(sum w)^2 / sum w^2` of the importance weights.
+        num_draws: number of pilot draws.
+        zero_fraction: share of draws where the target density is zero.
+    """
+
+    log_z: float
+    relative_standard_error: float
+    effective_sample_size: float
+    num_draws: int
+    zero_fraction: float
+
+
+def pilot_log_z(
+    key: PRNGKeyArray,
+    logdensity_fn: Callable[[Array], Array],
+    regeneration,
+    num_draws: int,
+) -> PilotEstimate:
+    """Estimate `log Z` by importance sampling from the regeneration distribution."""
+    draws = regeneration.sample(key, (num_draws,))
+    log_w = jax.jit(jax.vmap(lambda y: logdensity_fn(y) - regeneration.log_prob(y)))(draws)
+    log_w = np.asarray(log_w, dtype=np.float64)
+    log_w = np.where(np.isnan(log_w), -np.inf, log_w)
+    finite = np.isfinite(log_w)
+    if not finite.any():
+        raise ValueError(
+            f"none of {num_draws} draws of the regeneration distribution has positive target "
+            "density: the regeneration distribution misses the target's support"
+        )
+    top = log_w[finite].max()
+    w = np.where(finite, np.exp(log_w - top), 0.0)
+    mean = w.mean()
+    rel_se = float(w.std(ddof=1) / (mean * math.sqrt(num_draws))) if num_draws > 1 else math.inf
+    return PilotEstimate(
+        log_z=float(top + math.log(mean)),
+        relative_standard_error=rel_se,
+        effective_sample_size=float(w.sum() ** 2 / (w**2).sum()),
+        num_draws=num_draws,
+        zero_fraction=float(1.0 - finite.mean()),
+    )
+
+
+def check_positive(value: float | None, name: str) -> float | None:
+    """Reject non-positive, NaN or infinite rates and lengths with a clear message."""
+    if value is None:
+        return None
+    value = float(value)
+    if not math.isfinite(value) or value <= 0:
+        raise ValueError(f"{name} must be positive and finite, got {value!r}")
+    return value
+
+
+def check_finite(value: float | None, name: str) -> Float[Array, ""] | None:
+    if value is None:
+        return None
+    arr = jnp.asarray(value)
+    if arr.ndim != 0:
+        raise ValueError(f"{name} must be a scalar, got shape {arr.shape}")
+    if not isinstance(arr, jax.core.Tracer) and not bool(jnp.isfinite(arr)):
+        raise ValueError(f"{name} must be finite, got {value!r}")
+    return arr

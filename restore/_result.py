@@ -1,0 +1,248 @@
+"""The result of a run: estimates with standard errors, the normalising constant, diagnostics."""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Callable
+from typing import Any, Literal
+
+import jax
+import numpy as np
+
+from ._diagnostics import TourStatistics, tour_statistics
+from ._estimates import Estimate, lane_ratio, log_mean_exp, tour_ratio
+from ._observables import Observables
+
+Method = Literal["tours", "lanes"]
+
+
+class LogEstimate(Estimate):
+    """An estimate of a logarithm, e.g. `log Z`; `standard_error` is that of the log."""
+
+
+class SampleResult:
+    """What `restore.sample` returns: streamed sums, thinned draws and run facts.
+
+    Everything is held in numpy on the host. The main entry points are `estimate`,
+    `normalising_constant`, `tour_statistics`, `ess`, `estimate_draws` and `to_arviz`.
+    """
+
+    def __init__(self, **fields: Any):
+        self.__dict__.update(fields)
+
+    @classmethod
+    def from_run(cls, *, sampler, observables: Observables, sums, histogram, draws, draw_weights, final_state, num_steps, finishing_steps, thin, weights, wall_time, interrupted) -> SampleResult:
+        to_np = lambda tree: jax.tree.map(np.asarray, tree)  # noqa: E731
+        log_rate = getattr(sampler, "log_rate", None)
+        result = cls(
+            sampler_name=type(sampler).__name__,
+            is_regenerative=bool(getattr(sampler, "is_regenerative", False)),
+            observables=observables,
+            sums=to_np(sums),
+            histogram=to_np(histogram),
+            draws=np.asarray(draws),
+            draw_weights=np.asarray(draw_weights),
+            final_state=to_np(final_state),
+            num_lanes=int(np.asarray(sums.all_t).shape[0]),
+            num_steps=int(num_steps),
+            finishing_steps=int(finishing_steps),
+            thin=int(thin),
+            weights=weights,
+            wall_time=float(wall_time),
+            interrupted=bool(interrupted),
+            log_rate=None if log_rate is None else float(log_rate),
+            tour_length=getattr(sampler, "tour_length", None),
+            pilot=getattr(sampler, "pilot", None),
+        )
+        result._warn()
+        return result
+
+    # ------------------------------------------------------------------ estimates
+    def _default_method(self, method: Method | None) -> Method:
+        method = method or ("tours" if self.is_regenerative else "lanes")
+        if method not in ("tours", "lanes"):
+            raise ValueError(f"method must be 'tours' or 'lanes', got {method!r}")
+        if method == "tours" and not self.is_regenerative:
+            raise ValueError(f"{self.sampler_name} has no regenerations: use method='lanes'")
+        return method
+
+    def estimate(self, name: str, method: Method | None = None, lanes=None) -> Estimate:
+        """Estimate of `E_pi[f]` for the streamed observable `name`, with its standard error.
+
+        Arguments:
+            name: an observable given to `restore.sample` (default ones: `"x"`, `"x**2"`).
+            method: `"tours"` (regenerative ratio estimator over complete tours; the
+                default for Restore samplers) or `"lanes"` (lanes as independent
+                replicates, incomplete tours included; the default for MH).
+            lanes: optional index (slice, integer array or mask) of the lanes to use,
+                e.g. to form independent replications from one run.
+        """
+        slot = self.observables.slot(name)
+        cut = slice(slot.start, slot.start + slot.size)
+        s = self.sums
+        pick = (lambda a: a) if lanes is None else (lambda a: a[lanes])  # noqa: E731
+        if self._default_method(method) == "tours":
+            est = tour_ratio(pick(s.sum_f)[:, cut], pick(s.sum_f2)[:, cut], pick(s.sum_ft)[:, cut], pick(s.sum_t), pick(s.sum_t2), pick(s.num_tours))
+        else:
+            est = lane_ratio(pick(s.all_f)[:, cut], pick(s.all_t))
+        return Estimate(est.value.reshape(slot.shape), est.standard_error.reshape(slot.shape))
+
+    def ess(self, name: str, method: Method | None = None) -> np.ndarray:
+        """Effective sample size of each component: `Var_pi(f) / standard_error^2`."""
+        slot = self.observables.slot(name)
+        cut = slice(slot.start, slot.start + slot.size)
+        s = self.sums
+        total = float(np.sum(s.all_t, dtype=np.float64))
+        mean = np.sum(s.all_f[:, cut], axis=0, dtype=np.float64) / total
+        var = np.maximum(np.sum(s.all_f2[:, cut], axis=0, dtype=np.float64) / total - mean**2, 0.0)
+        se = self.estimate(name, method).standard_error.reshape(-1)
+        return (var / se**2).reshape(slot.shape)
+
+    def normalising_constant(self, method: Literal["tours", "importance"] = "tours") -> LogEstimate:
+        """Estimate of `log Z` with the standard error of the log.
+
+        `"tours"`: the mean tour duration is `Z / c_tilde`, so
+        `Z_hat = c_tilde * (total time of complete tours) / (number of tours)`.
+        `"importance"`: the mean of `p(y) / u(y)` over every regeneration draw `y ~ nu`
+        of the run (a by-product: those draws are evaluated anyway).
+        """
+        if not self.is_regenerative or self.log_rate is None:
+            raise ValueError("normalising constants come from Restore runs (with a log_rate)")
+        s = self.sums
+        if method == "tours":
+            n = float(np.sum(s.num_tours))
+            if n < 2:
+                raise ValueError("need at least 2 complete tours to estimate the normalising constant")
+            T, T2 = float(np.sum(s.sum_t, dtype=np.float64)), float(np.sum(s.sum_t2, dtype=np.float64))
+            mean = T / n
+            sd = math.sqrt(max(T2 / n - mean**2, 0.0) * n / (n - 1))
+            return LogEstimate(np.asarray(self.log_rate + math.log(mean)), np.asarray(sd / (mean * math.sqrt(n))))
+        if method == "importance":
+            log_z, se = log_mean_exp(s.log_iw_sum, s.log_iw_sum2, float(np.sum(s.num_iw)))
+            return LogEstimate(np.asarray(log_z), np.asarray(se))
+        raise ValueError(f"method must be 'tours' or 'importance', got {method!r}")
+
+    def tour_statistics(self) -> TourStatistics:
+        """Tour count, mean duration against `1/c`, and tail diagnostics of tour lengths."""
+        if not self.is_regenerative:
+            raise ValueError(f"{self.sampler_name} has no tours")
+        if self.tour_length is not None:
+            expected = float(self.tour_length)
+        else:
+            try:
+                expected = math.exp(float(self.normalising_constant("importance").value) - self.log_rate)
+            except ValueError:
+                expected = math.nan
+        s = self.sums
+        return tour_statistics(s.sum_t, s.sum_t2, s.num_tours, s.max_tour, s.all_t, self.histogram, expected)
+
+    @property
+    def acceptance_rate(self) -> float:
+        """Share of budgeted steps that made an accepted move (local moves, or MH large steps)."""
+        steps = self.num_steps * self.num_lanes
+        return float(np.sum(self.sums.num_accepted)) / max(steps, 1)
+
+    @property
+    def num_invalid(self) -> int:
+        """Evaluations that returned NaN or `+inf` (treated as zero density)."""
+        return int(np.sum(self.sums.num_invalid))
+
+    @property
+    def num_uncovered(self) -> int:
+        """Steps into states of positive target density that the regeneration cannot reach."""
+        return int(np.sum(self.sums.num_uncovered))
+
+    # ------------------------------------------------------------------ draws
+    def estimate_draws(self, fn: Callable[[np.ndarray], np.ndarray]) -> Estimate:
+        """Post-hoc estimate of `E_pi[fn(x)]` from the stored (thinned) draws and weights.
+
+        `fn` maps an array of states `(..., d)` to values `(...)` or `(..., k)` (numpy or
+        JAX). The standard error treats lanes as independent replicates.
+        """
+        if self.draws.shape[0] == 0:
+            raise ValueError("no draws were stored: pass max_draws > 0 (or thin) to restore.sample")
+        values = np.asarray(fn(self.draws), np.float64)
+        if values.shape[:2] != self.draws.shape[:2]:
+            raise ValueError(f"fn must keep the leading (draw, lane) axes {self.draws.shape[:2]}, got {values.shape}")
+        w = self.draw_weights.astype(np.float64)
+        wv = np.einsum("sl,sl...->l...", w, values)
+        return lane_ratio(wv, w.sum(axis=0))
+
+    def to_arviz(self, resample: bool = True, seed: int = 0):
+        """The stored draws as `arviz.InferenceData` (chains = lanes).
+
+        ArviZ expects equally weighted draws: with `resample=True` each lane's draws are
+        resampled in proportion to their weights (systematic resampling), and the weights
+        are kept in `sample_stats` as `weight`.
+        """
+        import arviz as az
+
+        if self.draws.shape[0] == 0:
+            raise ValueError("no draws were stored: pass max_draws > 0 (or thin) to restore.sample")
+        draws = np.swapaxes(self.draws, 0, 1)  # (lane, draw, d)
+        weights = np.swapaxes(self.draw_weights, 0, 1).astype(np.float64)
+        if resample:
+            rng = np.random.default_rng(seed)
+            n = draws.shape[1]
+            out = np.empty_like(draws)
+            for lane in range(draws.shape[0]):
+                w = weights[lane]
+                if w.sum() <= 0:
+                    out[lane] = draws[lane]
+                    continue
+                cdf = np.cumsum(w / w.sum())
+                idx = np.searchsorted(cdf, (rng.uniform() + np.arange(n)) / n)
+                out[lane] = draws[lane, np.minimum(idx, n - 1)]
+            draws = out
+        return az.from_dict(posterior={"x": draws}, sample_stats={"weight": weights})
+
+    # ------------------------------------------------------------------ reporting
+    def _warn(self) -> None:
+        if self.num_invalid:
+            warnings.warn(
+                f"the log density returned NaN or +inf at {self.num_invalid} evaluated points; they were "
+                "treated as zero density (rejected, or killed at once with weight zero)",
+                RuntimeWarning,
+                stacklevel=3,
+            )
+        if self.num_uncovered:
+            warnings.warn(
+                f"{self.num_uncovered} steps reached states with positive target density where the "
+                "regeneration density is zero: tours there are never killed, so the regeneration "
+                "distribution must cover the target's support (widen it or add a defensive component)",
+                RuntimeWarning,
+                stacklevel=3,
+            )
+        if self.is_regenerative and self.log_rate is not None:
+            stats = self.tour_statistics()
+            if stats.heavy_tailed:
+                warnings.warn(
+                    f"tour lengths are heavy-tailed: the longest 1% of tours hold {stats.longest_share:.0%} "
+                    f"of the time and the {stats.num_tours} tours are worth {stats.effective_num_tours:.1f} "
+                    "equal ones; estimates are dominated by a few tours. Use a regeneration distribution "
+                    "closer to the target (e.g. restore.regeneration.laplace_mixture)",
+                    RuntimeWarning,
+                    stacklevel=3,
+                )
+
+    def summary(self) -> str:
+        """A short text report of the run."""
+        lines = [
+            f"{self.sampler_name}: {self.num_lanes} lanes x {self.num_steps} steps in {self.wall_time:.2f} s"
+            + (" (interrupted)" if self.interrupted else ""),
+            f"  acceptance rate {self.acceptance_rate:.3f}, invalid evaluations {self.num_invalid}",
+        ]
+        if self.is_regenerative and self.log_rate is not None:
+            stats = self.tour_statistics()
+            lines.append(
+                f"  tours {stats.num_tours}, mean duration {stats.mean_duration:.3f} +- {stats.mean_duration_se:.3f} "
+                f"(expected 1/c = {stats.expected_duration:.3f}), longest 1% hold {stats.longest_share:.1%}"
+            )
+            if stats.num_tours >= 2:
+                log_z = self.normalising_constant("tours")
+                lines.append(f"  log Z = {float(log_z.value):.4f} +- {float(log_z.standard_error):.4f} (tours)")
+        return "\n".join(lines)
+
+    def __repr__(self) -> str:
+        return f"<SampleResult {self.sampler_name}: {self.num_lanes} lanes x {self.num_steps} steps>"

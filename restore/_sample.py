@@ -1,0 +1,248 @@
+"""Run many independent lanes of a sampler in a jitted scan, streaming estimates."""
+
+from __future__ import annotations
+
+import math
+import time
+import warnings
+from collections.abc import Callable, Mapping
+from typing import Any, Literal, NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, PRNGKeyArray
+
+from ._accumulators import (
+    LaneSums,
+    completed_durations,
+    init_histogram,
+    init_lane_sums,
+    update_histogram,
+    update_lane_sums,
+)
+from ._observables import Observables
+from ._progress import progress_bar
+from ._result import SampleResult
+
+Weights = Literal["rao_blackwell", "time"]
+
+
+class _Carry(NamedTuple):
+    states: Any
+    sums: LaneSums
+    histogram: tuple[Array, Array]
+    draws: Array
+    draw_weights: Array
+    step: Array
+
+
+def _lane_keys(key: PRNGKeyArray, num_lanes: int) -> Array:
+    """One key per lane, independent of how many lanes there are (lane `i` is reproducible)."""
+    return jax.vmap(lambda i: jax.random.fold_in(key, i))(jnp.arange(num_lanes))
+
+
+@eqx.filter_jit
+def _init(sampler, keys: Array, positions: Array | None):
+    if positions is None:
+        return jax.vmap(sampler.init)(keys)
+    return jax.vmap(sampler.init)(keys, positions)
+
+
+@eqx.filter_jit
+def _run_chunk(sampler, observe: Observables, carry: _Carry, lane_keys: Array, length: int, thin: int, rao_blackwell: bool) -> _Carry:
+    def body(carry: _Carry, _):
+        keys = jax.vmap(lambda k: jax.random.fold_in(k, carry.step))(lane_keys)
+        new_states, info = jax.vmap(sampler.step)(keys, carry.states)
+        weight = info.expected_holding_time if rao_blackwell else info.holding_time
+        values = jax.vmap(observe)(carry.states.position)
+        durations, ended = completed_durations(carry.sums, weight, info)
+        histogram = update_histogram(carry.histogram, durations, ended)
+        sums = update_lane_sums(carry.sums, values, weight, info)
+        draws, draw_weights = carry.draws, carry.draw_weights
+        if draws.shape[0] > 0:
+            slot = carry.step // thin
+            draws, draw_weights = jax.lax.cond(
+                (carry.step % thin == 0) & (slot < draws.shape[0]),
+                lambda d, w: (d.at[slot].set(carry.states.position), w.at[slot].set(weight)),
+                lambda d, w: (d, w),
+                draws,
+                draw_weights,
+            )
+        return _Carry(new_states, sums, histogram, draws, draw_weights, carry.step + 1), None
+
+    carry, _ = jax.lax.scan(body, carry, None, length=length)
+    return carry
+
+
+@eqx.filter_jit
+def _finish_tours(sampler, observe: Observables, carry: _Carry, lane_keys: Array, max_steps: int, rao_blackwell: bool):
+    """Run every lane on until its open tour ends, starting no new tour.
+
+    Dropping the tours still open when the step budget runs out would bias the estimates
+    towards short tours (long tours are the ones likely to straddle the end). Finishing
+    them makes the number of tours of each lane a stopping time, so by Wald's identity
+    the pooled sums `sum F` and `sum T` have the right ratio of expectations.
+    """
+
+    def active(carry: _Carry) -> Array:
+        return (carry.sums.open_steps > 0) & ~carry.sums.skip_first
+
+    def cond(loop):
+        carry, extra = loop
+        return jnp.any(active(carry)) & (extra < max_steps)
+
+    def body(loop):
+        carry, extra = loop
+        keys = jax.vmap(lambda k: jax.random.fold_in(k, carry.step))(lane_keys)
+        new_states, info = jax.vmap(sampler.step)(keys, carry.states)
+        on = active(carry)
+        weight = jnp.where(on, info.expected_holding_time if rao_blackwell else info.holding_time, 0.0)
+        values = jax.vmap(observe)(carry.states.position)
+        durations, ended = completed_durations(carry.sums, weight, info)
+        histogram = update_histogram(carry.histogram, durations, ended & on)
+        keep = lambda new, old: jnp.where(on.reshape((-1,) + (1,) * (new.ndim - 1)), new, old)  # noqa: E731
+        sums = jax.tree.map(keep, update_lane_sums(carry.sums, values, weight, info), carry.sums)
+        states = jax.tree.map(keep, new_states, carry.states)
+        return carry._replace(states=states, sums=sums, histogram=histogram, step=carry.step + 1), extra + 1
+
+    carry, extra = jax.lax.while_loop(cond, body, (carry, jnp.zeros((), jnp.int32)))
+    return carry, extra, jnp.sum(active(carry))
+
+
+def _thinning(num_steps: int, num_lanes: int, max_draws: int, thin: int | None) -> tuple[int, int]:
+    if thin is None:
+        thin = max(1, math.ceil(num_steps * num_lanes / max_draws)) if max_draws > 0 else num_steps + 1
+    if int(thin) != thin or thin < 1:
+        raise ValueError(f"thin must be a positive integer, got {thin!r}")
+    stored = 0 if max_draws <= 0 else min(math.ceil(num_steps / thin), max(max_draws // num_lanes, 0))
+    return int(thin), int(stored)
+
+
+def sample(
+    sampler,
+    key: PRNGKeyArray,
+    *,
+    num_lanes: int,
+    num_steps: int,
+    observables: Mapping[str, Callable[[Array], Array]] | None = None,
+    weights: Weights = "rao_blackwell",
+    positions: Array | None = None,
+    max_draws: int = 100_000,
+    thin: int | None = None,
+    progress: bool = True,
+    num_chunks: int = 50,
+    finish_tours: bool = True,
+) -> SampleResult:
+    """Run `num_lanes` independent lanes for `num_steps` steps each and stream estimates.
+
+    Lanes start at draws of the regeneration distribution (each lane is then a
+    regenerative process from its first step: no burn-in), or at `positions`, in which
+    case each lane's first, partial tour is left out of the tour-based estimates.
+    Observables are integrated against the holding times as the run goes (constant
+    memory); thinned draws with their weights are kept for post-hoc work.
+
+    Arguments:
+        sampler: a `JumpRestore` (or `MixtureMH`) sampler. A `JumpRestore` given a
+            `tour_length` is calibrated first with a pilot estimate of `Z`.
+        key: a JAX PRNG key. Lane `i` uses `fold_in(key, i)`-derived keys, so it gives
+            the same path whatever `num_lanes` is.
+        num_lanes: number of independent lanes, run in parallel with `vmap`.
+        num_steps: steps per lane (each step is one density evaluation for RandomWalk
+            and MALA local dynamics).
+        observables: mapping from names to functions of one state; default
+            `{"x": x, "x**2": x**2}`.
+        weights: `"rao_blackwell"` (holding times replaced by their means
+            `1/(r + gamma)`, lower variance) or `"time"` (the sampled holding times).
+        positions: optional `(num_lanes, d)` starting points.
+        max_draws: budget of stored draws over all lanes (thinning is chosen to fit).
+        thin: store every `thin`-th state (overrides the budget's choice).
+        progress: show a progress bar (updated between jitted chunks, so it costs nothing
+            inside the loop).
+        num_chunks: how many jitted chunks the run is cut into for the progress bar.
+        finish_tours: after the budget, run each lane on (at most `num_steps` more
+            steps, usually a handful) until its open tour ends, so that tour-based
+            estimates are not biased towards short tours. With `False` the open tours
+            are dropped.
+
+    Returns:
+        A `SampleResult` with estimates, standard errors and diagnostics. Interrupting
+        with Ctrl-C returns the result of the chunks completed so far (marked
+        `interrupted`).
+    """
+    for name, value in (("num_lanes", num_lanes), ("num_steps", num_steps), ("num_chunks", num_chunks)):
+        if isinstance(value, bool) or int(value) != value or value < 1:
+            raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    if weights not in ("rao_blackwell", "time"):
+        raise ValueError(f"weights must be 'rao_blackwell' or 'time', got {weights!r}")
+    num_lanes, num_steps = int(num_lanes), int(num_steps)
+    if not hasattr(sampler, "init") or not hasattr(sampler, "step"):
+        raise TypeError(f"sampler must have init and step methods, got {type(sampler).__name__}")
+
+    key_pilot, key_init, key_run = jax.random.split(key, 3)
+    if getattr(sampler, "log_rate", 0.0) is None:
+        sampler = sampler.calibrate(key_pilot)
+    dim = sampler.dim
+    if positions is not None:
+        positions = jnp.asarray(positions)
+        if positions.shape != (num_lanes, dim):
+            raise ValueError(f"positions must have shape (num_lanes, d) = ({num_lanes}, {dim}), got {positions.shape}")
+        if not bool(jnp.all(jnp.isfinite(positions))):
+            raise ValueError("positions must be finite")
+    states = _init(sampler, _lane_keys(key_init, num_lanes), positions)
+    dtype = states.logdensity.dtype
+    observe = Observables(observables, dim, dtype)
+
+    thin, stored = _thinning(num_steps, num_lanes, max_draws, thin)
+    carry = _Carry(
+        states=states,
+        sums=init_lane_sums(num_lanes, observe.size, dtype, jnp.full((num_lanes,), positions is not None)),
+        histogram=init_histogram(dtype),
+        draws=jnp.zeros((stored, num_lanes, dim), dtype),
+        draw_weights=jnp.zeros((stored, num_lanes), dtype),
+        step=jnp.zeros((), jnp.int32),
+    )
+    lane_keys = _lane_keys(key_run, num_lanes)
+    chunk = math.ceil(num_steps / min(num_chunks, num_steps))
+    rao_blackwell = weights == "rao_blackwell"
+
+    start, done, interrupted = time.perf_counter(), 0, False
+    with progress_bar(num_steps, f"{type(sampler).__name__}: {num_lanes} lanes", enabled=progress) as advance:
+        try:
+            while done < num_steps:
+                length = min(chunk, num_steps - done)
+                carry = jax.block_until_ready(_run_chunk(sampler, observe, carry, lane_keys, length, thin, rao_blackwell))
+                done += length
+                advance(length)
+        except KeyboardInterrupt:
+            interrupted = True
+            warnings.warn(f"interrupted after {done} of {num_steps} steps; returning the partial result", stacklevel=2)
+    finishing_steps = unfinished = 0
+    if getattr(sampler, "is_regenerative", False) and not interrupted and finish_tours:
+        carry, finishing_steps, unfinished = _finish_tours(sampler, observe, carry, lane_keys, num_steps, rao_blackwell)
+        finishing_steps, unfinished = int(finishing_steps), int(unfinished)
+        if unfinished:
+            warnings.warn(
+                f"{unfinished} lanes still had an open tour after {finishing_steps} extra steps; those tours are "
+                "left out of the tour-based estimates (tour lengths may be heavy-tailed)",
+                RuntimeWarning,
+                stacklevel=2,
+            )
+    wall_time = time.perf_counter() - start
+
+    return SampleResult.from_run(
+        sampler=sampler,
+        observables=observe,
+        sums=carry.sums,
+        histogram=carry.histogram,
+        draws=carry.draws[: min(stored, math.ceil(done / thin))],
+        draw_weights=carry.draw_weights[: min(stored, math.ceil(done / thin))],
+        final_state=carry.states,
+        num_steps=done,
+        finishing_steps=finishing_steps,
+        thin=thin,
+        weights=weights,
+        wall_time=wall_time,
+        interrupted=interrupted,
+    )

@@ -1,0 +1,13 @@
+"""Local dynamics: pi-invariant Markov kernels that a Restore process embeds in continuous time.
+
+Each kernel is split at its one new density evaluation (`propose`, then `accept`), so a
+sampler can share that evaluation with a regeneration draw.
+"""
+
+from ._base import AbstractLocalKernel as AbstractLocalKernel
+from ._base import LocalInfo as LocalInfo
+from ._base import metropolis_accept as metropolis_accept
+from ._blackjax import BlackJAXKernel as BlackJAXKernel
+from ._hmc import HMC as HMC
+from ._mala import MALA as MALA
+from ._random_walk import RandomWalk as RandomWalk
