@@ -1,0 +1,3 @@
+"""Densities to sample: analytic targets (and later light transport)."""
+
+from . import analytic as analytic

@@ -1,0 +1,18 @@
+"""Analytic test densities with exact samplers and exact reference quantities.
+
+Every target provides a normalised `logdensity` (jit/vmap/grad-able), exact
+independent draws (`sample`), the exact `mean` and `covariance`, and exact marginal
+CDFs where a closed form exists. Mixtures additionally report the component a
+point most likely came from (`assign_mode`).
+"""
+
+from ._banana import Banana as Banana
+from ._base import AbstractMixture as AbstractMixture, AbstractTarget as AbstractTarget
+from ._builders import (
+    well_separated_gaussian_mixture as well_separated_gaussian_mixture,
+    well_separated_student_t_mixture as well_separated_student_t_mixture,
+)
+from ._funnel import Funnel as Funnel
+from ._gaussian_mixture import GaussianMixture as GaussianMixture
+from ._ring import Ring as Ring
+from ._student_t_mixture import StudentTMixture as StudentTMixture
