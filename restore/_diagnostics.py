@@ -12,7 +12,7 @@ import numpy as np
 LONGEST_SHARE_LIMIT = 0.3
 #: ...or when the effective number of tours `(sum T)^2 / sum T^2` falls below this share of
 #: the tour count (exponential tour lengths give about one half).
-EFFECTIVE_SHARE_LIMIT = 0.1
+EFFECTIVE_SHARE_LIMIT = 0.05
 
 
 class TourStatistics(NamedTuple):

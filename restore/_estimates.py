@@ -16,7 +16,8 @@ class Estimate(NamedTuple):
 
     def z_score(self, truth) -> np.ndarray:
         """`(value - truth) / standard_error`."""
-        return (self.value - np.asarray(truth)) / self.standard_error
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return (self.value - np.asarray(truth)) / self.standard_error
 
     def __repr__(self) -> str:
         fmt = {"float_kind": lambda v: f"{v:.4g}"}

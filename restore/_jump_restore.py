@@ -98,7 +98,7 @@ class JumpRestore(eqx.Module):
         pilot_size: number of regeneration draws of the pilot estimate of `Z`.
     """
 
-    logdensity: Callable[[Array], Array] = eqx.field(static=True)
+    logdensity: Callable[[Array], Array]
     local: AbstractLocalKernel
     regeneration: AbstractRegeneration
     log_rate: Float[Array, ""] | None

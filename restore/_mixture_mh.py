@@ -55,7 +55,7 @@ class MixtureMH(eqx.Module):
         large_step_probability: probability in `[0, 1]` of a large step.
     """
 
-    logdensity: Callable[[Array], Array] = eqx.field(static=True)
+    logdensity: Callable[[Array], Array]
     local: AbstractLocalKernel
     regeneration: AbstractRegeneration
     large_step_probability: Float[Array, ""]

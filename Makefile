@@ -1,0 +1,24 @@
+# Two entry points that bootstrap their own virtual environment: `make demo`, `make test`.
+PYTHON ?= python3
+VENV ?= .venv
+BIN := $(VENV)/bin
+
+.PHONY: demo test bench clean
+
+$(VENV)/.installed: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e '.[test]'
+	touch $@
+
+demo: $(VENV)/.installed
+	$(BIN)/restore demo
+
+test: $(VENV)/.installed
+	$(BIN)/pytest -n 2 -q
+
+bench: $(VENV)/.installed
+	$(BIN)/python benchmarks/core.py
+
+clean:
+	rm -rf $(VENV) restore-demo.png

@@ -1,0 +1,74 @@
+"""The run driver and its result: estimates, draws, diagnostics, reproducibility."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import restore
+from restore.local import RandomWalk
+from restore.regeneration import Gaussian
+
+
+def std_normal(x):
+    return -0.5 * jnp.sum(x**2)
+
+
+@pytest.fixture(scope="module")
+def run():
+    sampler = restore.JumpRestore(std_normal, RandomWalk(1.0), Gaussian(jnp.zeros(2), 2.0), tour_length=2.0)
+    return restore.sample(sampler, jax.random.key(0), num_lanes=128, num_steps=800, progress=False, max_draws=20_000)
+
+
+def test_estimates_against_the_truth(run):
+    for name, truth in (("x", 0.0), ("x**2", 1.0)):
+        est = run.estimate(name)
+        assert est.value.shape == (2,)
+        assert np.all(np.abs(est.z_score(truth)) < 4.5)
+        lanes = run.estimate(name, method="lanes")
+        assert np.all(np.abs(lanes.z_score(truth)) < 4.5)
+    log_z = np.log(2 * np.pi)
+    for method in ("tours", "importance"):
+        est = run.normalising_constant(method)
+        assert abs(float(est.z_score(log_z))) < 4.5, method
+    ess = run.ess("x")
+    assert np.all(ess > 1000) and np.all(ess < 128 * 800)
+
+
+def test_draws_arviz_and_summary(run):
+    assert run.draws.shape[1:] == (128, 2) and run.draws.shape[0] * 128 <= 20_000
+    est = run.estimate_draws(lambda x: x**2)
+    assert np.all(np.abs(est.z_score(1.0)) < 4.5)
+    idata = run.to_arviz()
+    assert idata.posterior["x"].shape[:2] == (128, run.draws.shape[0])
+    text = run.summary()
+    assert "tours" in text and "log Z" in text
+    stats = run.tour_statistics()
+    assert stats.num_tours > 1000 and not stats.heavy_tailed
+
+
+def test_same_key_same_result_and_lanes_do_not_depend_on_the_lane_count():
+    sampler = restore.JumpRestore(std_normal, RandomWalk(1.0), Gaussian(jnp.zeros(2), 2.0), log_rate=0.0)
+    a = restore.sample(sampler, jax.random.key(5), num_lanes=8, num_steps=200, progress=False, num_chunks=3)
+    b = restore.sample(sampler, jax.random.key(5), num_lanes=8, num_steps=200, progress=False, num_chunks=7)
+    c = restore.sample(sampler, jax.random.key(5), num_lanes=4, num_steps=200, progress=False)
+    np.testing.assert_array_equal(a.sums.sum_f, b.sums.sum_f)
+    np.testing.assert_array_equal(a.draws[:, :4], c.draws)
+
+
+def test_heavy_tailed_tours_are_flagged():
+    """A regeneration far wider than the target: most tours die at once, a few live long."""
+    sampler = restore.JumpRestore(std_normal, RandomWalk(0.5), Gaussian(jnp.zeros(2), 400.0), tour_length=1.0)
+    with pytest.warns(RuntimeWarning, match="heavy-tailed"):
+        result = restore.sample(sampler, jax.random.key(1), num_lanes=64, num_steps=500, progress=False)
+    assert result.tour_statistics().heavy_tailed
+
+
+def test_mh_results_use_lanes_and_refuse_tours():
+    mh = restore.MixtureMH(std_normal, RandomWalk(1.0), Gaussian(jnp.zeros(2), 2.0), 0.1)
+    result = restore.sample(mh, jax.random.key(2), num_lanes=64, num_steps=300, progress=False)
+    assert np.all(np.abs(result.estimate("x").z_score(0.0)) < 4.5)
+    with pytest.raises(ValueError, match="method='lanes'"):
+        result.estimate("x", method="tours")
+    with pytest.raises(KeyError, match="no observable named"):
+        result.estimate("y")

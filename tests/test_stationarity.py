@@ -1,0 +1,98 @@
+"""Check 1 of the validation protocol: fixed-time stationarity, with negative controls that fail it."""
+
+import blackjax
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import restore
+from restore.local import HMC, MALA, BlackJAXKernel, RandomWalk
+from restore.testing import stationarity_test
+
+from ._models import (
+    RateDistortion,
+    UnadjustedRandomWalk,
+    banana,
+    broad_regeneration,
+    jump_restore,
+    laplace_regeneration,
+    mixture_10d,
+    mixture_2d,
+)
+
+ALPHA = 1e-3  # family-wise level of each check; negative controls fail far beyond it
+
+
+def _check(sampler, target, key, time=4.0, num_lanes=20_000):
+    mixture = hasattr(target, "assign_mode")
+    return stationarity_test(
+        sampler,
+        key,
+        target.sample,
+        num_lanes=num_lanes,
+        time=time,
+        assign_mode=target.assign_mode if mixture else None,
+        mode_weights=target.weights if mixture else None,
+        alpha=ALPHA,
+    )
+
+
+LOCALS = {
+    "rw": lambda d: RandomWalk(2.0 / np.sqrt(d)),
+    "mala": lambda d: MALA(0.6 / d**0.33),
+    "hmc": lambda d: HMC(0.4, 4),
+}
+
+
+@pytest.mark.parametrize("kernel", LOCALS)
+@pytest.mark.parametrize("case", ["mixture_2d", "banana", "mixture_10d"])
+def test_jump_restore_keeps_the_target_at_a_fixed_time(kernel, case):
+    target = {"mixture_2d": mixture_2d, "banana": banana, "mixture_10d": mixture_10d}[case]()
+    nu = broad_regeneration(target) if case == "banana" else laplace_regeneration(target)
+    sampler = jump_restore(target, LOCALS[kernel](target.dim), nu, tour_length=1.0)
+    report = _check(sampler, target, jax.random.key(11))
+    assert report.passed, str(report)
+
+
+def test_blackjax_kernel_as_local_dynamics_keeps_the_target():
+    target = mixture_2d()
+    local = BlackJAXKernel(lambda logp: blackjax.mala(logp, step_size=0.3), uses_gradient=True)
+    sampler = jump_restore(target, local, laplace_regeneration(target))
+    report = _check(sampler, target, jax.random.key(12))
+    assert report.passed, str(report)
+
+
+def test_mixture_mh_baseline_keeps_the_target():
+    target = mixture_10d()
+    sampler = restore.MixtureMH(target.logdensity, RandomWalk(0.6), laplace_regeneration(target), 0.2)
+    report = _check(sampler, target, jax.random.key(13), time=10.0)  # holding times are 1: 10 steps
+    assert report.passed, str(report)
+
+
+# ---------------------------------------------------------------- negative controls
+
+
+def test_constant_killing_rate_fails():
+    target = mixture_10d()
+    nu = laplace_regeneration(target)
+    wrong = RateDistortion(nu, target.logdensity, power=1.0)  # gamma = c_tilde, constant
+    sampler = restore.JumpRestore(target.logdensity, RandomWalk(0.6), wrong, log_rate=0.0)
+    report = _check(sampler, target, jax.random.key(21), num_lanes=5000)
+    assert not report.passed and report.min_p_value < 1e-10, str(report)
+
+
+def test_kill_rate_with_a_state_dependent_scaling_fails():
+    target = mixture_2d()
+    nu = laplace_regeneration(target)
+    wrong = RateDistortion(nu, target.logdensity, power=0.5)  # gamma = c sqrt(u / p)
+    sampler = restore.JumpRestore(target.logdensity, RandomWalk(1.0), wrong, log_rate=0.0)
+    report = _check(sampler, target, jax.random.key(22), num_lanes=5000)
+    assert not report.passed and report.min_p_value < 1e-10, str(report)
+
+
+def test_non_invariant_local_kernel_presented_as_invariant_fails():
+    target = mixture_2d()
+    sampler = jump_restore(target, UnadjustedRandomWalk(1.0), laplace_regeneration(target), tour_length=5.0)
+    report = _check(sampler, target, jax.random.key(23), num_lanes=5000)
+    assert not report.passed and report.min_p_value < 1e-10, str(report)
