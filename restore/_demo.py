@@ -36,7 +36,7 @@ class DemoOutcome(NamedTuple):
 def run_demo(
     dim: int = 10,
     num_lanes: int = 512,
-    num_steps: int = 2000,
+    num_steps: int = 1500,
     tour_length: float = 10.0,
     seed: int = 0,
     progress: bool = True,
