@@ -18,7 +18,7 @@ test: $(VENV)/.installed
 	$(BIN)/pytest -n 2 -q
 
 bench: $(VENV)/.installed
-	$(BIN)/python benchmarks/core.py
+	$(BIN)/python examples/benchmark_core.py
 
 clean:
 	rm -rf $(VENV) restore-demo.png
