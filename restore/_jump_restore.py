@@ -21,7 +21,7 @@ from ._rate import (
     log_total_rate,
     pilot_log_z,
 )
-from ._validation import check_logdensity, check_position
+from ._validation import check_parts, check_position
 from .local import AbstractLocalKernel
 from .regeneration import AbstractRegeneration
 
@@ -121,14 +121,9 @@ class JumpRestore(eqx.Module):
         pilot_size: int = 4096,
         pilot: PilotEstimate | None = None,
     ):
-        if not isinstance(local, AbstractLocalKernel):
-            raise TypeError(f"local must be a restore.local kernel, got {type(local).__name__}")
-        if not isinstance(regeneration, AbstractRegeneration):
-            raise TypeError(f"regeneration must be a restore.regeneration distribution, got {type(regeneration).__name__}")
         if (log_rate is None) == (tour_length is None):
             raise ValueError("give exactly one of log_rate (log c_tilde) or tour_length (mean tour duration)")
-        check_logdensity(logdensity, regeneration.dim)
-        local.check_dim(regeneration.dim)
+        check_parts(logdensity, local, regeneration)
         self.logdensity = logdensity
         self.local = local
         self.regeneration = regeneration

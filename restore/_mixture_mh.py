@@ -11,7 +11,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, PRNGKeyArray
 
 from ._point import Point, evaluate
-from ._validation import check_logdensity, check_position
+from ._validation import check_parts, check_position
 from .local import AbstractLocalKernel
 from .local._base import metropolis_accept
 from .regeneration import AbstractRegeneration
@@ -63,15 +63,10 @@ class MixtureMH(eqx.Module):
     is_regenerative: ClassVar[bool] = False
 
     def __init__(self, logdensity, local, regeneration, large_step_probability: float = 0.1):
-        if not isinstance(local, AbstractLocalKernel):
-            raise TypeError(f"local must be a restore.local kernel, got {type(local).__name__}")
-        if not isinstance(regeneration, AbstractRegeneration):
-            raise TypeError(f"regeneration must be a restore.regeneration distribution, got {type(regeneration).__name__}")
         q = float(large_step_probability)
         if not 0.0 <= q <= 1.0:
             raise ValueError(f"large_step_probability must be in [0, 1], got {large_step_probability!r}")
-        check_logdensity(logdensity, regeneration.dim)
-        local.check_dim(regeneration.dim)
+        check_parts(logdensity, local, regeneration)
         self.logdensity = logdensity
         self.local = local
         self.regeneration = regeneration

@@ -41,3 +41,17 @@ def check_position(position: Array, dim: int) -> Array:
     if not isinstance(arr, jax.core.Tracer) and not bool(jnp.all(jnp.isfinite(arr))):
         raise ValueError("position must be finite")
     return arr
+
+
+def check_parts(logdensity: Callable[[Array], Array], local, regeneration) -> None:
+    """A sampler's parts: a restore.local kernel, a regeneration distribution, and a
+    log density and kernel that fit its dimension."""
+    from .local import AbstractLocalKernel
+    from .regeneration import AbstractRegeneration
+
+    if not isinstance(local, AbstractLocalKernel):
+        raise TypeError(f"local must be a restore.local kernel, got {type(local).__name__}")
+    if not isinstance(regeneration, AbstractRegeneration):
+        raise TypeError(f"regeneration must be a restore.regeneration distribution, got {type(regeneration).__name__}")
+    check_logdensity(logdensity, regeneration.dim)
+    local.check_dim(regeneration.dim)
