@@ -7,6 +7,7 @@ import math
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax.scipy.linalg import solve_triangular
 from jax.scipy.special import ndtr
 from jaxtyping import Array, ArrayLike, Float, Int, PRNGKeyArray
@@ -80,6 +81,46 @@ class GaussianMixture(AbstractMixture):
             jnp.log(jnp.diagonal(self.cholesky_factors, axis1=-2, axis2=-1)), axis=-1
         )
         return -0.5 * jnp.sum(z * z, axis=-1) - half_logdet - 0.5 * self.dim * math.log(2 * math.pi)
+
+    def smoothed(self, covariance: ArrayLike) -> GaussianMixture:
+        """The mixture convolved with `N(0, C)`: `C` added to every component covariance.
+
+        Its `logdensity(y)` is exactly `log ∫ p(x) N(y; x, C) dx` for this (normalised)
+        mixture `p`, which is what a non-invariant Gaussian jump kernel needs, e.g.
+        `UnadjustedJump(s, log_convolution=mixture.smoothed(s**2).logdensity)`.
+
+        Arguments:
+            covariance: `C`, a non-negative scalar (`C = c I`), non-negative diagonal
+                variances `(d,)`, or a symmetric positive semi-definite matrix `(d, d)`.
+
+        Raises:
+            ValueError: on a wrong shape, non-finite values, or a `C` that is not
+                positive semi-definite.
+        """
+        d = self.dim
+        arr = _checks.float_array(covariance, "covariance")
+        _checks.check_finite(arr, "covariance")
+        values = _checks.concrete(arr)
+        if arr.ndim == 0 or arr.shape == (d,):
+            if values is not None and not np.all(values >= 0):
+                raise ValueError(f"covariance must be non-negative, got {values}")
+            extra = jnp.broadcast_to(arr, (d,)) * jnp.eye(d, dtype=arr.dtype)
+        elif arr.shape == (d, d):
+            if values is not None:
+                values = np.asarray(values, dtype=np.float64)
+                asym = np.max(np.abs(values - values.T))
+                if asym > 100 * np.finfo(np.float64).eps * max(np.max(np.abs(values)), 1e-300):
+                    raise ValueError(f"covariance must be symmetric (max asymmetry {asym:.3g})")
+                eigenvalues = np.linalg.eigvalsh(values)
+                if eigenvalues.min() < -100 * np.finfo(np.float64).eps * max(np.abs(eigenvalues).max(), 1e-300):
+                    raise ValueError(f"covariance must be positive semi-definite (eigenvalues {eigenvalues})")
+            extra = 0.5 * (arr + arr.T)
+        else:
+            raise ValueError(
+                f"covariance must be a scalar, or have shape ({d},) (diagonal variances) or ({d}, {d}); "
+                f"got shape {arr.shape}"
+            )
+        return GaussianMixture(self.means, self.covariances + extra.astype(self.covariances.dtype), self.weights)
 
     def component_marginal_cdfs(self, i: int, t: Float[Array, "*t"]) -> Float[Array, "*t k"]:
         sd = jnp.sqrt(self.covariances[:, i, i])
