@@ -19,6 +19,7 @@ test: $(VENV)/.installed
 
 bench: $(VENV)/.installed
 	$(BIN)/python examples/benchmark_core.py
+	$(BIN)/python examples/benchmark_general.py
 
 clean:
 	rm -rf $(VENV) restore-demo.png

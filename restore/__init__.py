@@ -1,15 +1,23 @@
 """restore: Restore samplers in JAX.
 
-A Restore process runs local dynamics (any pi-invariant Markov kernel, embedded in
-continuous time), kills them at the state-dependent rate `gamma = c_tilde u / p`, and
-restarts them at draws of a regeneration distribution `u`. The result is invariant for
+A Restore process runs local dynamics (a Markov kernel embedded in continuous time, or a
+diffusion), kills them at the state-dependent rate `gamma = L* p / p + c_tilde q / p`,
+and restarts them at draws of a transfer kernel that leaves `q` invariant (a
+regeneration distribution `q = u`, in the simplest case). `JumpRestore` is the
+pi-invariant-kernel, independent-regeneration special case of `Restore`. The result is invariant for
 the target `p`, regenerative (so many lanes run in parallel with no burn-in), and gives
 estimates with honest standard errors and the normalising constant for free.
 """
 
+from . import dynamics as dynamics
 from . import local as local
 from . import regeneration as regeneration
+from . import transfer as transfer
 from ._estimates import Estimate as Estimate
+from ._bounds import MinimalRate as MinimalRate
+from ._bounds import RateBound as RateBound
+from ._bounds import minimal_log_rate as minimal_log_rate
+from ._bounds import rate_bound as rate_bound
 from ._diagnostics import TourStatistics as TourStatistics
 from ._jump_restore import JumpRestore as JumpRestore
 from ._jump_restore import JumpRestoreInfo as JumpRestoreInfo
@@ -18,6 +26,10 @@ from ._mixture_mh import MixtureMH as MixtureMH
 from ._mixture_mh import MixtureMHInfo as MixtureMHInfo
 from ._mixture_mh import MixtureMHState as MixtureMHState
 from ._point import Point as Point
+from ._restore import AbstractRestore as AbstractRestore
+from ._restore import Restore as Restore
+from ._restore import RestoreInfo as RestoreInfo
+from ._restore import RestoreState as RestoreState
 from ._rate import PilotEstimate as PilotEstimate
 from ._result import LogEstimate as LogEstimate
 from ._result import SampleResult as SampleResult

@@ -42,6 +42,9 @@ class LaneSums(NamedTuple):
     num_uncovered: Int[Array, ""]
     num_accepted: Int[Array, ""]
     num_regenerations: Int[Array, ""]
+    num_negative_rate: Int[Array, ""]
+    num_bound_exceeded: Int[Array, ""]
+    max_bound_ratio: Float[Array, ""]
 
 
 def init_lane_sums(num_lanes: int, size: int, dtype, skip_first: Array) -> LaneSums:
@@ -50,7 +53,7 @@ def init_lane_sums(num_lanes: int, size: int, dtype, skip_first: Array) -> LaneS
     zm = jnp.zeros((num_lanes, size), dtype)
     zi = jnp.zeros((num_lanes,), jnp.int32)
     ninf = jnp.full((num_lanes,), -jnp.inf, dtype)
-    return LaneSums(zm, z, zm, zm, zm, z, z, zi, zi, z, zm, zm, z, skip_first, ninf, ninf, zi, zi, zi, zi, zi)
+    return LaneSums(zm, z, zm, zm, zm, z, z, zi, zi, z, zm, zm, z, skip_first, ninf, ninf, zi, zi, zi, zi, zi, zi, zi, z)
 
 
 def update_lane_sums(sums: LaneSums, values: Array, weight: Array, info) -> LaneSums:
@@ -67,6 +70,9 @@ def update_lane_sums(sums: LaneSums, values: Array, weight: Array, info) -> Lane
     if log_iw is None:
         log_iw = jnp.full_like(weight, -jnp.inf)
     zero = jnp.zeros((), jnp.int32)
+    drawn = getattr(info, "start_drawn", end)
+    never = jnp.zeros_like(end)
+    bound_ratio = getattr(info, "bound_ratio", jnp.zeros_like(weight))
     return LaneSums(
         open_f=jnp.where(end[:, None], 0.0, open_f),
         open_t=jnp.where(end, 0.0, open_t),
@@ -84,11 +90,14 @@ def update_lane_sums(sums: LaneSums, values: Array, weight: Array, info) -> Lane
         skip_first=sums.skip_first & ~end,
         log_iw_sum=jnp.logaddexp(sums.log_iw_sum, log_iw),
         log_iw_sum2=jnp.logaddexp(sums.log_iw_sum2, 2.0 * log_iw),
-        num_iw=sums.num_iw + end.astype(jnp.int32),
+        num_iw=sums.num_iw + drawn.astype(jnp.int32),
         num_invalid=sums.num_invalid + info.invalid.astype(jnp.int32),
         num_uncovered=sums.num_uncovered + getattr(info, "uncovered", jnp.zeros_like(end)).astype(jnp.int32),
         num_accepted=sums.num_accepted + info.accepted.astype(jnp.int32),
         num_regenerations=sums.num_regenerations + jnp.where(end, 1, zero),
+        num_negative_rate=sums.num_negative_rate + getattr(info, "negative_rate", never).astype(jnp.int32),
+        num_bound_exceeded=sums.num_bound_exceeded + (bound_ratio > 1).astype(jnp.int32),
+        max_bound_ratio=jnp.maximum(sums.max_bound_ratio, bound_ratio),
     )
 
 

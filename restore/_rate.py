@@ -100,3 +100,19 @@ def check_finite(value: float | None, name: str) -> Float[Array, ""] | None:
     if not isinstance(arr, jax.core.Tracer) and not bool(jnp.isfinite(arr)):
         raise ValueError(f"{name} must be finite, got {value!r}")
     return arr
+
+
+def log_total_kill_rate(log_transfer_rate: Array, adjoint_ratio: Array) -> tuple[Array, Array]:
+    """`log gamma` for `gamma = a + exp(log_transfer_rate)` with a signed adjoint term `a = L* p / p`.
+
+    Returns `log max(gamma, 0)` and a flag that is true when `gamma < 0`: the constant
+    `c_tilde` is then too small for these dynamics there (the caller counts it; the
+    rate used is zero). Stable in log space when `exp(log_transfer_rate)` would overflow.
+    """
+    big = log_transfer_rate
+    positive = jnp.logaddexp(log_transfer_rate, jnp.log(jnp.maximum(adjoint_ratio, 0.0)))
+    # a < 0: gamma = e^l (1 - |a| e^-l)
+    x = jnp.log(jnp.maximum(-adjoint_ratio, 0.0)) - big
+    negative_side = big + jnp.log1p(-jnp.exp(jnp.minimum(x, 0.0)))
+    log_gamma = jnp.where(adjoint_ratio >= 0, positive, jnp.where(x < 0, negative_side, -jnp.inf))
+    return log_gamma, (adjoint_ratio < 0) & (x > 0)

@@ -33,11 +33,12 @@ class SampleResult:
 
     @classmethod
     def from_run(cls, *, sampler, observables: Observables, sums, histogram, draws, draw_weights, final_state, num_steps, finishing_steps, thin, weights, wall_time, interrupted) -> SampleResult:
-        to_np = lambda tree: jax.tree.map(np.asarray, tree)  # noqa: E731
-        log_rate = getattr(sampler, "log_rate", None)
+        to_np = lambda tree: jax.tree.map(np.asarray, tree)
+        log_rate = getattr(sampler, "effective_log_rate", getattr(sampler, "log_rate", None))
         result = cls(
             sampler_name=type(sampler).__name__,
             is_regenerative=bool(getattr(sampler, "is_regenerative", False)),
+            has_tours=bool(getattr(sampler, "has_tours", False)),
             observables=observables,
             sums=to_np(sums),
             histogram=to_np(histogram),
@@ -64,6 +65,11 @@ class SampleResult:
         if method not in ("tours", "lanes"):
             raise ValueError(f"method must be 'tours' or 'lanes', got {method!r}")
         if method == "tours" and not self.is_regenerative:
+            if self.has_tours:
+                raise ValueError(
+                    "tours depend on each other through the exit-dependent transfer, so tour-based standard "
+                    "errors would be wrong: use method='lanes' (each lane is an independent replicate)"
+                )
             raise ValueError(f"{self.sampler_name} has no regenerations: use method='lanes'")
         return method
 
@@ -81,7 +87,7 @@ class SampleResult:
         slot = self.observables.slot(name)
         cut = slice(slot.start, slot.start + slot.size)
         s = self.sums
-        pick = (lambda a: a) if lanes is None else (lambda a: a[lanes])  # noqa: E731
+        pick = (lambda a: a) if lanes is None else (lambda a: a[lanes])
         if self._default_method(method) == "tours":
             est = tour_ratio(pick(s.sum_f)[:, cut], pick(s.sum_f2)[:, cut], pick(s.sum_ft)[:, cut], pick(s.sum_t), pick(s.sum_t2), pick(s.num_tours))
         else:
@@ -104,10 +110,14 @@ class SampleResult:
 
         `"tours"`: the mean tour duration is `Z / c_tilde`, so
         `Z_hat = c_tilde * (total time of complete tours) / (number of tours)`.
-        `"importance"`: the mean of `p(y) / u(y)` over every regeneration draw `y ~ nu`
-        of the run (a by-product: those draws are evaluated anyway).
+        `"importance"`: the mean of `p(y) / q(y)` over every tour start `y` drawn from the
+        reference `q` of the run (a by-product: those draws are evaluated anyway).
+
+        With an exit-dependent transfer the tours are dependent (tour starts are still
+        `q`-distributed in stationarity, so both estimates stay consistent), and the
+        standard error of the `"tours"` estimate is computed over lanes instead.
         """
-        if not self.is_regenerative or self.log_rate is None:
+        if not self.has_tours or self.log_rate is None:
             raise ValueError("normalising constants come from Restore runs (with a log_rate)")
         s = self.sums
         if method == "tours":
@@ -116,8 +126,12 @@ class SampleResult:
                 raise ValueError("need at least 2 complete tours to estimate the normalising constant")
             T, T2 = float(np.sum(s.sum_t, dtype=np.float64)), float(np.sum(s.sum_t2, dtype=np.float64))
             mean = T / n
-            sd = math.sqrt(max(T2 / n - mean**2, 0.0) * n / (n - 1))
-            return LogEstimate(np.asarray(self.log_rate + math.log(mean)), np.asarray(sd / (mean * math.sqrt(n))))
+            if self.is_regenerative:
+                sd = math.sqrt(max(T2 / n - mean**2, 0.0) * n / (n - 1))
+                rel_se = sd / (mean * math.sqrt(n))
+            else:
+                rel_se = float(lane_ratio(s.sum_t, s.num_tours).standard_error) / mean
+            return LogEstimate(np.asarray(self.log_rate + math.log(mean)), np.asarray(rel_se))
         if method == "importance":
             log_z, se = log_mean_exp(s.log_iw_sum, s.log_iw_sum2, float(np.sum(s.num_iw)))
             return LogEstimate(np.asarray(log_z), np.asarray(se))
@@ -125,7 +139,7 @@ class SampleResult:
 
     def tour_statistics(self) -> TourStatistics:
         """Tour count, mean duration against `1/c`, and tail diagnostics of tour lengths."""
-        if not self.is_regenerative:
+        if not self.has_tours:
             raise ValueError(f"{self.sampler_name} has no tours")
         if self.tour_length is not None:
             expected = float(self.tour_length)
@@ -147,6 +161,22 @@ class SampleResult:
     def num_invalid(self) -> int:
         """Evaluations that returned NaN or `+inf` (treated as zero density)."""
         return int(np.sum(self.sums.num_invalid))
+
+    @property
+    def num_negative_rate(self) -> int:
+        """States where the kill rate was negative (`c_tilde` too small for the dynamics)."""
+        return int(np.sum(getattr(self.sums, "num_negative_rate", 0)))
+
+    @property
+    def num_bound_exceeded(self) -> int:
+        """Thinning candidates where the kill rate exceeded the bound `Gamma`."""
+        return int(np.sum(getattr(self.sums, "num_bound_exceeded", 0)))
+
+    @property
+    def max_bound_ratio(self) -> float:
+        """Largest `gamma / Gamma` seen at a thinning candidate (above 1: the bound failed)."""
+        ratio = getattr(self.sums, "max_bound_ratio", None)
+        return float(np.max(ratio)) if ratio is not None and np.size(ratio) else 0.0
 
     @property
     def num_uncovered(self) -> int:
@@ -214,7 +244,23 @@ class SampleResult:
                 RuntimeWarning,
                 stacklevel=3,
             )
-        if self.is_regenerative and self.log_rate is not None:
+        if self.num_negative_rate:
+            warnings.warn(
+                f"the kill rate was negative at {self.num_negative_rate} states: c_tilde is too small for these "
+                "dynamics there (the rate used was zero, so the process is not exactly invariant). Raise log_rate "
+                "(restore.minimal_log_rate searches for the smallest safe value)",
+                RuntimeWarning,
+                stacklevel=3,
+            )
+        if self.num_bound_exceeded:
+            warnings.warn(
+                f"the kill rate exceeded the thinning bound at {self.num_bound_exceeded} candidate events (up to "
+                f"{self.max_bound_ratio:.3g} times the bound): those kills were too rare, so the process is not "
+                "exactly invariant. Raise the bound (restore.rate_bound searches a region for one)",
+                RuntimeWarning,
+                stacklevel=3,
+            )
+        if self.has_tours and self.log_rate is not None:
             stats = self.tour_statistics()
             if stats.heavy_tailed:
                 warnings.warn(
@@ -233,7 +279,7 @@ class SampleResult:
             + (" (interrupted)" if self.interrupted else ""),
             f"  acceptance rate {self.acceptance_rate:.3f}, invalid evaluations {self.num_invalid}",
         ]
-        if self.is_regenerative and self.log_rate is not None:
+        if self.has_tours and self.log_rate is not None:
             stats = self.tour_statistics()
             lines.append(
                 f"  tours {stats.num_tours}, mean duration {stats.mean_duration:.3f} +- {stats.mean_duration_se:.3f} "

@@ -11,7 +11,6 @@ from typing import Any, Literal, NamedTuple
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jaxtyping import Array, PRNGKeyArray
 
 from ._accumulators import (
@@ -50,65 +49,54 @@ def _init(sampler, keys: Array, positions: Array | None):
     return jax.vmap(sampler.init)(keys, positions)
 
 
+def _active(carry: _Carry) -> Array:
+    """Lanes inside a tour that counts (an open tour after a regeneration)."""
+    return (carry.sums.open_steps > 0) & ~carry.sums.skip_first
+
+
 @eqx.filter_jit
-def _run_chunk(sampler, observe: Observables, carry: _Carry, lane_keys: Array, length: int, thin: int, rao_blackwell: bool) -> _Carry:
-    def body(carry: _Carry, _):
+def _advance(sampler, observe: Observables, carry: _Carry, lane_keys: Array, length: Array, finishing: Array, thin: int, rao_blackwell: bool):
+    """Run every lane for `length` steps, or (`finishing`) until each lane's open tour ends.
+
+    One compiled program serves every chunk length and both modes (both are traced), so
+    a run compiles its step function once. When finishing, no new tour is started:
+    a lane whose tour has ended stops (its state and sums are frozen). Dropping the tours
+    still open when the step budget runs out would bias the estimates towards short
+    tours (long tours are the ones likely to straddle the end). Finishing them makes the
+    number of tours of each lane a stopping time, so by Wald's identity the pooled sums
+    `sum F` and `sum T` have the right ratio of expectations.
+    """
+
+    def cond(loop):
+        carry, done = loop
+        return (done < length) & (~finishing | jnp.any(_active(carry)))
+
+    def body(loop):
+        carry, done = loop
         keys = jax.vmap(lambda k: jax.random.fold_in(k, carry.step))(lane_keys)
         new_states, info = jax.vmap(sampler.step)(keys, carry.states)
-        weight = info.expected_holding_time if rao_blackwell else info.holding_time
-        values = jax.vmap(observe)(carry.states.position)
+        on = ~finishing | _active(carry)
+        weight = jnp.where(on, info.expected_holding_time if rao_blackwell else info.holding_time, 0.0)
+        observed = getattr(info, "position", carry.states.position)
+        values = jax.vmap(observe)(observed)
         durations, ended = completed_durations(carry.sums, weight, info)
-        histogram = update_histogram(carry.histogram, durations, ended)
-        sums = update_lane_sums(carry.sums, values, weight, info)
+        histogram = update_histogram(carry.histogram, durations, ended & on)
+        keep = lambda new, old: jnp.where(on.reshape((-1,) + (1,) * (new.ndim - 1)), new, old)
+        sums = jax.tree.map(keep, update_lane_sums(carry.sums, values, weight, info), carry.sums)
+        states = jax.tree.map(keep, new_states, carry.states)
         draws, draw_weights = carry.draws, carry.draw_weights
         if draws.shape[0] > 0:
             slot = carry.step // thin
             draws, draw_weights = jax.lax.cond(
-                (carry.step % thin == 0) & (slot < draws.shape[0]),
-                lambda d, w: (d.at[slot].set(carry.states.position), w.at[slot].set(weight)),
+                ~finishing & (carry.step % thin == 0) & (slot < draws.shape[0]),
+                lambda d, w: (d.at[slot].set(observed), w.at[slot].set(weight)),
                 lambda d, w: (d, w),
                 draws,
                 draw_weights,
             )
-        return _Carry(new_states, sums, histogram, draws, draw_weights, carry.step + 1), None
+        return _Carry(states, sums, histogram, draws, draw_weights, carry.step + 1), done + 1
 
-    carry, _ = jax.lax.scan(body, carry, None, length=length)
-    return carry
-
-
-@eqx.filter_jit
-def _finish_tours(sampler, observe: Observables, carry: _Carry, lane_keys: Array, max_steps: int, rao_blackwell: bool):
-    """Run every lane on until its open tour ends, starting no new tour.
-
-    Dropping the tours still open when the step budget runs out would bias the estimates
-    towards short tours (long tours are the ones likely to straddle the end). Finishing
-    them makes the number of tours of each lane a stopping time, so by Wald's identity
-    the pooled sums `sum F` and `sum T` have the right ratio of expectations.
-    """
-
-    def active(carry: _Carry) -> Array:
-        return (carry.sums.open_steps > 0) & ~carry.sums.skip_first
-
-    def cond(loop):
-        carry, extra = loop
-        return jnp.any(active(carry)) & (extra < max_steps)
-
-    def body(loop):
-        carry, extra = loop
-        keys = jax.vmap(lambda k: jax.random.fold_in(k, carry.step))(lane_keys)
-        new_states, info = jax.vmap(sampler.step)(keys, carry.states)
-        on = active(carry)
-        weight = jnp.where(on, info.expected_holding_time if rao_blackwell else info.holding_time, 0.0)
-        values = jax.vmap(observe)(carry.states.position)
-        durations, ended = completed_durations(carry.sums, weight, info)
-        histogram = update_histogram(carry.histogram, durations, ended & on)
-        keep = lambda new, old: jnp.where(on.reshape((-1,) + (1,) * (new.ndim - 1)), new, old)  # noqa: E731
-        sums = jax.tree.map(keep, update_lane_sums(carry.sums, values, weight, info), carry.sums)
-        states = jax.tree.map(keep, new_states, carry.states)
-        return carry._replace(states=states, sums=sums, histogram=histogram, step=carry.step + 1), extra + 1
-
-    carry, extra = jax.lax.while_loop(cond, body, (carry, jnp.zeros((), jnp.int32)))
-    return carry, extra, jnp.sum(active(carry))
+    return jax.lax.while_loop(cond, body, (carry, jnp.zeros((), jnp.int32)))
 
 
 def _thinning(num_steps: int, num_lanes: int, max_draws: int, thin: int | None) -> tuple[int, int]:
@@ -179,6 +167,11 @@ def sample(
     num_lanes, num_steps = int(num_lanes), int(num_steps)
     if not hasattr(sampler, "init") or not hasattr(sampler, "step"):
         raise TypeError(f"sampler must have init and step methods, got {type(sampler).__name__}")
+    if weights == "time" and getattr(sampler, "is_diffusion", False):
+        raise ValueError(
+            "weights='time' is not available for diffusion dynamics: a thinning candidate stands for "
+            "1/Gamma time units of the path (Campbell's formula), so use weights='rao_blackwell'"
+        )
 
     key_pilot, key_init, key_run = jax.random.split(key, 3)
     if getattr(sampler, "log_rate", 0.0) is None:
@@ -212,16 +205,17 @@ def sample(
         try:
             while done < num_steps:
                 length = min(chunk, num_steps - done)
-                carry = jax.block_until_ready(_run_chunk(sampler, observe, carry, lane_keys, length, thin, rao_blackwell))
+                carry, _ = _advance(sampler, observe, carry, lane_keys, jnp.asarray(length, jnp.int32), jnp.asarray(False), thin, rao_blackwell)
+                carry = jax.block_until_ready(carry)
                 done += length
                 advance(length)
         except KeyboardInterrupt:
             interrupted = True
             warnings.warn(f"interrupted after {done} of {num_steps} steps; returning the partial result", stacklevel=2)
     finishing_steps = unfinished = 0
-    if getattr(sampler, "is_regenerative", False) and not interrupted and finish_tours:
-        carry, finishing_steps, unfinished = _finish_tours(sampler, observe, carry, lane_keys, num_steps, rao_blackwell)
-        finishing_steps, unfinished = int(finishing_steps), int(unfinished)
+    if getattr(sampler, "has_tours", False) and not interrupted and finish_tours:
+        carry, finishing_steps = _advance(sampler, observe, carry, lane_keys, jnp.asarray(num_steps, jnp.int32), jnp.asarray(True), thin, rao_blackwell)
+        finishing_steps, unfinished = int(finishing_steps), int(jnp.sum(_active(carry)))
         if unfinished:
             warnings.warn(
                 f"{unfinished} lanes still had an open tour after {finishing_steps} extra steps; those tours are "

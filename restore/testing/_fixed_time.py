@@ -22,11 +22,17 @@ def _run(sampler, keys: Array, positions: Array, time: float, max_steps: int):
             new_state, info = sampler.step(jax.random.fold_in(key, steps), state)
             ends_later = elapsed + info.holding_time > time
             state = jax.tree.map(lambda old, new: jnp.where(ends_later, old, new), state, new_state)
-            return state, elapsed + info.holding_time, ends_later, steps + 1
+            elapsed = jnp.where(ends_later, elapsed, elapsed + info.holding_time)
+            return state, elapsed, ends_later, steps + 1
 
         zero = jnp.zeros((), positions.dtype)
-        state, _, done, steps = jax.lax.while_loop(cond, body, (state, zero, jnp.zeros((), bool), jnp.zeros((), jnp.int32)))
-        return state.position, done, steps
+        state, elapsed, done, steps = jax.lax.while_loop(cond, body, (state, zero, jnp.zeros((), bool), jnp.zeros((), jnp.int32)))
+        advance = getattr(sampler, "advance_position", None)
+        if advance is None:
+            return state.position, done, steps
+        # Diffusions move on between events: the event that would end the wait comes after
+        # `time`, and (memoryless, independent of the path) the path to `time` is a fresh one.
+        return advance(jax.random.fold_in(key, 2**31 - 1), state, time - elapsed), done, steps
 
     return jax.vmap(one_lane)(keys, positions)
 
@@ -35,7 +41,9 @@ def fixed_time_states(sampler, key: PRNGKeyArray, positions: Array, time: float,
     """Run each lane from `positions` with real exponential holding times up to `time`.
 
     The state held at `time` is returned (the move that would end its holding is
-    discarded: holding times are independent of what happens next). If the initial
+    discarded: holding times are independent of what happens next). For diffusion
+    dynamics the process moves between events, so the state at `time` is the last
+    event's state moved on by the remaining time (`sampler.advance_position`). If the initial
     positions are exact draws of the target and the sampler is correct, the returned
     states are exact draws of the target too; the jump chain itself (state after `k`
     steps) is *not* target-distributed, because short holding times are over-counted.

@@ -1,0 +1,467 @@
+"""The general Restore process: local dynamics killed at `gamma = L* p / p + c_tilde q / p`, then transferred.
+
+One `step` is one event of one lane. Jump dynamics use competing exponentials (exact);
+diffusions use Poisson thinning with a bound `Gamma` on the kill rate (exact when the
+bound holds; every violation is counted). Tours may cycle through phases, each with its
+own dynamics, transfer kernel and constant.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable, Sequence
+from typing import ClassVar, NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
+
+from ._point import Point, evaluate
+from ._rate import (
+    PilotEstimate,
+    check_positive,
+    kill_log_probability,
+    log_kill_rate,
+    log_total_kill_rate,
+    log_total_rate,
+    pilot_log_z,
+)
+from ._validation import check_logdensity, check_position
+from .dynamics import AbstractDiffusion, AbstractDynamics, AbstractJumpDynamics
+from .transfer import AbstractTransfer
+
+
+class RestoreState(NamedTuple):
+    """State of one Restore lane.
+
+    Attributes:
+        position: current state `x`.
+        logdensity: `log p(x)` (`-inf` for zero density).
+        logdensity_grad: gradient of `log p` at `x`, or `None` if no part needs it.
+        log_kill_rate: `log(c_tilde q(x) / p(x))`, the transfer part of the kill rate (the
+            whole kill rate when the local dynamics leave the target invariant).
+        adjoint_ratio: `L* p / p` at `x` (zero for invariant dynamics).
+        phase: which `(dynamics, transfer, constant)` the current tour uses.
+        tour: index of the current tour in this lane.
+        pending: a diffusion tour was just killed at `position`; the next step draws the
+            start of the next tour (always false for jump dynamics).
+    """
+
+    position: Float[Array, " d"]
+    logdensity: Float[Array, ""]
+    logdensity_grad: Float[Array, " d"] | None
+    log_kill_rate: Float[Array, ""]
+    adjoint_ratio: Float[Array, ""]
+    phase: Int[Array, ""]
+    tour: Int[Array, ""]
+    pending: Bool[Array, ""]
+
+
+class RestoreInfo(NamedTuple):
+    """What one step did.
+
+    Attributes:
+        position: the state the weights below refer to (jump dynamics: the state held
+            before the step; diffusions: the state at the candidate event).
+        holding_time: time elapsed in this step (a sampled exponential).
+        expected_holding_time: the Rao-Blackwellised weight: `1 / (r + gamma(x))` for
+            jump dynamics, `1 / Gamma` for thinning (each candidate event stands for
+            `1/Gamma` time units of the path).
+        regenerated: the tour ended at this step.
+        accepted: a local move was made (and accepted, for Metropolis kernels).
+        acceptance_probability: of the local move.
+        invalid: the new evaluation returned NaN or `+inf` (treated as zero density).
+        uncovered: the new state has positive target density but zero reference density.
+        log_importance_weight: `log p(y) - log q(y)` at a freshly drawn tour start `y`.
+        start_drawn: this step drew the start of a tour.
+        negative_rate: the kill rate was negative at the state tested: `c_tilde` is too
+            small for these dynamics (`restore.minimal_log_rate` searches for a safe one).
+        bound_ratio: `gamma / Gamma` at a thinning candidate (zero for jump dynamics);
+            above 1 the bound was violated.
+    """
+
+    position: Float[Array, " d"]
+    holding_time: Float[Array, ""]
+    expected_holding_time: Float[Array, ""]
+    regenerated: Bool[Array, ""]
+    accepted: Bool[Array, ""]
+    acceptance_probability: Float[Array, ""]
+    invalid: Bool[Array, ""]
+    uncovered: Bool[Array, ""]
+    log_importance_weight: Float[Array, ""]
+    start_drawn: Bool[Array, ""]
+    negative_rate: Bool[Array, ""]
+    bound_ratio: Float[Array, ""]
+
+
+def _as_phases(value, name: str) -> tuple:
+    return tuple(value) if isinstance(value, (list, tuple)) else (value,)
+
+
+def cycle(tour: Array, num_phases: int) -> Array:
+    """The default phase rule: tour `i` uses phase `i mod K`."""
+    return jnp.mod(tour, num_phases)
+
+
+class AbstractRestore(eqx.Module):
+    """Shared machinery of `Restore` and `JumpRestore`: init, step, calibration."""
+
+    logdensity: Callable[[Array], Array]
+    dynamics: tuple[AbstractDynamics, ...]
+    transfers: tuple[AbstractTransfer, ...]
+    log_rate: Float[Array, "*K"] | None
+    tour_length: tuple[float, ...] | None = eqx.field(static=True)
+    bound: tuple[float | None, ...] = eqx.field(static=True)
+    phase_rule: Callable[[Array], Array] | None = eqx.field(static=True)
+    pilot_size: int = eqx.field(static=True)
+    pilot: PilotEstimate | None = eqx.field(static=True)
+
+    has_tours: ClassVar[bool] = True
+
+    # ------------------------------------------------------------------ construction
+    def _setup(self, logdensity, dynamics, transfers, log_rate, tour_length, bound, phase_rule, pilot_size, pilot):
+        dynamics, transfers = _as_phases(dynamics, "dynamics"), _as_phases(transfers, "transfer")
+        K = max(len(dynamics), len(transfers))
+        for name, parts in (("dynamics", dynamics), ("transfer", transfers)):
+            if len(parts) not in (1, K):
+                raise ValueError(f"{name} has {len(parts)} phases but another part has {K}")
+        dynamics = dynamics * K if len(dynamics) == 1 else dynamics
+        transfers = transfers * K if len(transfers) == 1 else transfers
+        for d in dynamics:
+            if not isinstance(d, AbstractDynamics):
+                raise TypeError(f"dynamics must be restore.dynamics objects, got {type(d).__name__}")
+        for t in transfers:
+            if not isinstance(t, AbstractTransfer):
+                raise TypeError(f"transfer must be restore.transfer kernels, got {type(t).__name__}")
+        kinds = {isinstance(d, AbstractDiffusion) for d in dynamics}
+        if len(kinds) > 1:
+            raise ValueError("all phases must use the same kind of dynamics (all jump processes or all diffusions)")
+        dims = {t.dim for t in transfers}
+        if len(dims) > 1:
+            raise ValueError(f"the transfer kernels live in different dimensions {sorted(dims)}")
+        dim = dims.pop()
+        check_logdensity(logdensity, dim)
+        for d, t in zip(dynamics, transfers):
+            d.check_dim(dim)
+            if not d.is_invariant and not t.is_independent:
+                raise ValueError(
+                    f"{type(d).__name__} does not leave the target invariant, and {type(t).__name__} depends on the "
+                    "exit point: no kill rate of closed form makes that pair exact. Use pi-invariant local "
+                    "dynamics with exit-dependent transfers, or an independent transfer (restore.transfer.Independent)"
+                )
+        if (log_rate is None) == (tour_length is None):
+            raise ValueError("give exactly one of log_rate (log c_tilde) or tour_length (mean tour duration)")
+        if log_rate is not None:
+            rates = jnp.atleast_1d(jnp.asarray(log_rate))
+            if rates.ndim != 1 or rates.shape[0] not in (1, K):
+                raise ValueError(f"log_rate must be a scalar or one value per phase ({K}), got shape {rates.shape}")
+            if not isinstance(rates, jax.core.Tracer) and not bool(jnp.all(jnp.isfinite(rates))):
+                raise ValueError(f"log_rate must be finite, got {log_rate!r}")
+            log_rate = rates[0] if K == 1 else jnp.broadcast_to(rates, (K,))
+        if tour_length is not None:
+            lengths = _as_phases(tour_length, "tour_length")
+            if len(lengths) not in (1, K):
+                raise ValueError(f"tour_length must be a scalar or one value per phase ({K})")
+            tour_length = tuple(check_positive(v, "tour_length") for v in (lengths * K if len(lengths) == 1 else lengths))
+        bounds = _as_phases(bound, "bound")
+        if len(bounds) not in (1, K):
+            raise ValueError(f"bound must be a scalar or one value per phase ({K})")
+        bounds = bounds * K if len(bounds) == 1 else bounds
+        if kinds == {True}:
+            if any(b is None for b in bounds):
+                raise ValueError(
+                    "diffusion dynamics need a bound Gamma >= gamma on the kill rate for Poisson thinning: pass "
+                    "bound=..., e.g. from restore.rate_bound over the region the tours explore"
+                )
+            bounds = tuple(check_positive(b, "bound") for b in bounds)
+        if phase_rule is not None and not callable(phase_rule):
+            raise TypeError("phase_rule must be a function from the tour index to a phase index")
+        if int(pilot_size) != pilot_size or pilot_size < 2:
+            raise ValueError(f"pilot_size must be an integer >= 2, got {pilot_size!r}")
+        self.logdensity = logdensity
+        self.dynamics = dynamics
+        self.transfers = transfers
+        self.log_rate = log_rate
+        self.tour_length = tour_length
+        self.bound = bounds
+        self.phase_rule = phase_rule
+        self.pilot_size = int(pilot_size)
+        self.pilot = pilot
+
+    # ------------------------------------------------------------------ facts
+    @property
+    def dim(self) -> int:
+        return self.transfers[0].dim
+
+    @property
+    def num_phases(self) -> int:
+        return len(self.dynamics)
+
+    @property
+    def is_diffusion(self) -> bool:
+        return isinstance(self.dynamics[0], AbstractDiffusion)
+
+    @property
+    def is_regenerative(self) -> bool:
+        """Tours start independently of the past (every transfer is independent): lanes are
+        regenerative and tour-based standard errors are valid."""
+        return all(t.is_independent for t in self.transfers)
+
+    @property
+    def effective_log_rate(self) -> float | None:
+        """`log c_eff` with `1 / c_eff` the mean of `1 / c_tilde_k` over phases, so that the mean
+        tour duration is `Z / c_eff` under the default cycle (`log c_tilde` with one phase)."""
+        if self.log_rate is None:
+            return None
+        rates = jnp.atleast_1d(jnp.asarray(self.log_rate, jnp.float64 if jax.config.jax_enable_x64 else jnp.float32))
+        return float(-(jax.nn.logsumexp(-rates) - math.log(rates.shape[0])))
+
+    @property
+    def uses_gradient(self) -> bool:
+        return any(d.uses_gradient for d in self.dynamics)
+
+    def _replace(self, **changes):
+        """A copy with some fields changed (static ones included), without re-running checks."""
+        new = object.__new__(type(self))
+        for field in dataclasses.fields(self):
+            object.__setattr__(new, field.name, changes.get(field.name, getattr(self, field.name)))
+        return new
+
+    def calibrate(self, key: PRNGKeyArray):
+        """Return a copy with `log_rate` set from `tour_length` by a pilot estimate of `Z`.
+
+        The pilot is importance sampling from the first phase's reference distribution;
+        phase `k` then gets `log c_tilde_k = log Z_hat - log T_k`. A sampler that already
+        has a `log_rate` is returned unchanged.
+        """
+        if self.log_rate is not None:
+            return self
+        pilot = pilot_log_z(key, self.logdensity, self.transfers[0].reference, self.pilot_size)
+        rates = jnp.asarray([pilot.log_z - math.log(t) for t in self.tour_length])
+        rates = rates[0] if self.num_phases == 1 else rates
+        return self._replace(log_rate=rates, tour_length=None, pilot=pilot)
+
+    def _require_rate(self) -> Array:
+        if self.log_rate is None:
+            raise ValueError(
+                "this sampler has a tour_length but no log_rate yet: call sampler.calibrate(key) "
+                "first (restore.sample does it for you)"
+            )
+        return self.log_rate
+
+    # ------------------------------------------------------------------ phase helpers
+    def _by_phase(self, phase: Array, fn: Callable[[int], object]):
+        if self.num_phases == 1:
+            return fn(0)
+        return jax.lax.switch(phase, [lambda k=k: fn(k) for k in range(self.num_phases)])
+
+    def _next_phase(self, tour: Array) -> Array:
+        if self.num_phases == 1:
+            return jnp.zeros((), jnp.int32)
+        rule = self.phase_rule or (lambda i: cycle(i, self.num_phases))
+        return jnp.clip(jnp.asarray(rule(tour), jnp.int32), 0, self.num_phases - 1)
+
+    def _terms(self, phase: Array, point: Point, invalid: Array, log_rates: Array):
+        """Kill-rate terms at an evaluated point: `(point, invalid, log_q, log_kill, adjoint)`."""
+
+        def one(k: int):
+            log_q = self.transfers[k].reference.log_prob(point.position)
+            if self.dynamics[k].is_invariant:
+                adjoint = jnp.zeros((), point.logdensity.dtype)
+            else:
+                adjoint = self.dynamics[k].adjoint_ratio(self.logdensity, point).astype(point.logdensity.dtype)
+            return log_q, jnp.atleast_1d(log_rates)[k], adjoint
+
+        log_q, log_rate, adjoint = self._by_phase(phase, one)
+        if all(d.is_invariant for d in self.dynamics):
+            return point, invalid, log_q, log_kill_rate(log_rate, log_q, point.logdensity), adjoint
+        finite = jnp.isfinite(point.logdensity)
+        bad = finite & jnp.isnan(adjoint)
+        point = point._replace(logdensity=jnp.where(bad, -jnp.inf, point.logdensity))
+        adjoint = jnp.where(finite & ~bad, adjoint, 0.0)
+        return point, invalid | bad, log_q, log_kill_rate(log_rate, log_q, point.logdensity), adjoint
+
+    # ------------------------------------------------------------------ init / step
+    def init(self, key: PRNGKeyArray, position: Array | None = None, phase: int | Array = 0) -> RestoreState:
+        """Start a lane at `position`, or at a draw of the first phase's reference (a tour start)."""
+        log_rates = self._require_rate()
+        phase = jnp.asarray(phase, jnp.int32)
+        if position is None:
+            position = self._by_phase(phase, lambda k: self.transfers[k].reference.sample(key))
+        else:
+            position = check_position(position, self.dim)
+        point, invalid = evaluate(self.logdensity, position, self.uses_gradient)
+        point, _, _, log_kill, adjoint = self._terms(phase, point, invalid, log_rates)
+        zero = jnp.zeros((), jnp.int32)
+        return RestoreState(point.position, point.logdensity, point.grad, log_kill, adjoint, phase, zero, jnp.zeros((), bool))
+
+    def step(self, key: PRNGKeyArray, state: RestoreState) -> tuple[RestoreState, RestoreInfo]:
+        """One event of the lane: a local move or a kill (jump dynamics), or one thinning candidate (diffusions)."""
+        log_rates = self._require_rate()
+        fn = self._diffusion_step if self.is_diffusion else self._jump_step
+        if self.num_phases == 1:
+            return fn(0, key, state, log_rates)
+        return jax.lax.switch(state.phase, [lambda k=k: fn(k, key, state, log_rates) for k in range(self.num_phases)])
+
+    def _jump_step(self, k: int, key: PRNGKeyArray, state: RestoreState, log_rates: Array):
+        dynamics: AbstractJumpDynamics = self.dynamics[k]  # type: ignore[assignment]
+        k_event, k_hold, k_propose, k_accept, k_regen = jax.random.split(key, 5)
+        dtype = state.logdensity.dtype
+        log_r = jnp.log(jnp.asarray(dynamics.rate, dtype))
+        if dynamics.is_invariant:
+            log_gamma, negative = state.log_kill_rate, jnp.zeros((), bool)
+        else:
+            log_gamma, negative = log_total_kill_rate(state.log_kill_rate, state.adjoint_ratio)
+
+        killed = jnp.log(jax.random.uniform(k_event, dtype=dtype)) < kill_log_probability(log_gamma, log_r)
+        mean_hold = jnp.exp(-log_total_rate(log_gamma, log_r))
+        hold = jax.random.exponential(k_hold, dtype=dtype) * mean_hold
+
+        point = Point(state.position, state.logdensity, state.logdensity_grad)
+        candidate, aux = dynamics.propose(k_propose, point, self.logdensity)
+        next_phase = self._next_phase(state.tour + 1)
+        fresh = self._by_phase(next_phase, lambda j: self.transfers[j].sample(k_regen, state.position)).astype(candidate.dtype)
+        evaluated, invalid = evaluate(self.logdensity, jnp.where(killed, fresh, candidate), self.uses_gradient)
+        moved, local_info = dynamics.accept(k_accept, point, evaluated, aux)
+        new_point = jax.tree.map(lambda a, b: jnp.where(killed, a, b), evaluated, moved)
+        new_phase = jnp.where(killed, next_phase, state.phase) if self.num_phases > 1 else state.phase
+
+        new_point, invalid, log_q, log_kill, adjoint = self._terms(new_phase, new_point, invalid, log_rates)
+        new_state = RestoreState(
+            new_point.position,
+            new_point.logdensity,
+            new_point.grad,
+            log_kill,
+            adjoint,
+            new_phase,
+            state.tour + killed.astype(jnp.int32),
+            state.pending,
+        )
+        log_weight = jnp.where(killed, new_point.logdensity - log_q, -jnp.inf)
+        info = RestoreInfo(
+            position=state.position,
+            holding_time=hold,
+            expected_holding_time=mean_hold,
+            regenerated=killed,
+            accepted=local_info.accepted & ~killed,
+            acceptance_probability=jnp.where(killed, 0.0, local_info.acceptance_probability).astype(dtype),
+            invalid=invalid,
+            uncovered=(log_q == -jnp.inf) & jnp.isfinite(new_point.logdensity),
+            log_importance_weight=jnp.where(jnp.isnan(log_weight), -jnp.inf, log_weight),
+            start_drawn=killed,
+            negative_rate=negative,
+            bound_ratio=jnp.zeros((), dtype),
+        )
+        return new_state, info
+
+    def _diffusion_step(self, k: int, key: PRNGKeyArray, state: RestoreState, log_rates: Array):
+        dynamics: AbstractDiffusion = self.dynamics[k]  # type: ignore[assignment]
+        k_gap, k_move, k_kill = jax.random.split(key, 3)
+        dtype = state.logdensity.dtype
+        bound = jnp.asarray(self.bound[k], dtype)
+        gap = jax.random.exponential(k_gap, dtype=dtype) / bound
+        pending = state.pending
+        start = self.transfers[k].sample(k_move, state.position)
+        moved = dynamics.advance(k_move, state.position, gap, self.logdensity).astype(dtype)
+        evaluated, invalid = evaluate(self.logdensity, jnp.where(pending, start.astype(dtype), moved), self.uses_gradient)
+        evaluated, invalid, log_q, log_kill, adjoint = self._terms(state.phase, evaluated, invalid, log_rates)
+
+        log_gamma, negative = log_total_kill_rate(log_kill, adjoint)
+        log_ratio = log_gamma - jnp.log(bound)
+        killed = ~pending & (jnp.log(jax.random.uniform(k_kill, dtype=dtype)) < log_ratio)
+        next_phase = self._next_phase(state.tour + 1)
+        new_state = RestoreState(
+            evaluated.position,
+            evaluated.logdensity,
+            evaluated.grad,
+            log_kill,
+            adjoint,
+            jnp.where(killed, next_phase, state.phase) if self.num_phases > 1 else state.phase,
+            state.tour + killed.astype(jnp.int32),
+            killed,
+        )
+        log_weight = jnp.where(pending, evaluated.logdensity - log_q, -jnp.inf)
+        zero = jnp.zeros((), dtype)
+        info = RestoreInfo(
+            position=evaluated.position,
+            holding_time=jnp.where(pending, zero, gap),
+            expected_holding_time=jnp.where(pending, zero, 1.0 / bound),
+            regenerated=killed,
+            accepted=~pending,
+            acceptance_probability=jnp.where(pending, zero, 1.0).astype(dtype),
+            invalid=invalid,
+            uncovered=(log_q == -jnp.inf) & jnp.isfinite(evaluated.logdensity) & ~pending,
+            log_importance_weight=jnp.where(jnp.isnan(log_weight), -jnp.inf, log_weight),
+            start_drawn=pending,
+            negative_rate=negative & ~pending,
+            bound_ratio=jnp.where(pending, zero, jnp.exp(log_ratio)),
+        )
+        return new_state, info
+
+    def advance_position(self, key: PRNGKeyArray, state: RestoreState, duration: Array) -> Array:
+        """The position `duration` time units after `state`, given that no event happens before.
+
+        Jump dynamics hold still between events; a diffusion moves on (exactly for
+        Brownian motion and Ornstein-Uhlenbeck). Used to read the state at fixed times.
+        """
+        if not self.is_diffusion:
+            return state.position
+        return self._by_phase(state.phase, lambda k: self.dynamics[k].advance(key, state.position, duration, self.logdensity))
+
+
+class Restore(AbstractRestore):
+    """A general Restore process, one lane at a time.
+
+    Tour `i` runs local `dynamics` from its start until it is killed at rate
+    `gamma(x) = L* p(x) / p(x) + c_tilde q(x) / p(x)`, where `q` is the reference
+    density of the `transfer` kernel; the next tour starts at a draw of
+    `transfer.sample(key, x_exit)`. With pi-invariant dynamics (`L* p = 0`) any transfer
+    that leaves `q` invariant is exact; non-invariant dynamics (Brownian motion, an
+    unadjusted random walk) need an independent transfer. The mean tour duration is
+    `Z / c_tilde` in every case, so tours estimate `Z`.
+
+    Jump dynamics are simulated exactly with competing exponentials; diffusions by Poisson
+    thinning: candidate events at rate `bound`, each a kill with probability
+    `gamma / bound`. A candidate where `gamma > bound` (the bound was wrong there) and a
+    state where `gamma < 0` (`c_tilde` too small) are counted and reported by
+    `restore.sample`, never hidden.
+
+    Schedules: pass sequences for `dynamics`, `transfer`, `log_rate`/`tour_length` and
+    `bound` to give each phase its own; tour `i` uses phase `phase_rule(i)` (default
+    `i mod K`, a deterministic cycle). The kill rate of a tour uses the reference of the
+    transfer that started it.
+
+    Arguments:
+        logdensity: unnormalised log density of one point `(d,)`.
+        dynamics: a `restore.dynamics` object (or one per phase).
+        transfer: a `restore.transfer` kernel (or one per phase); a plain
+            `restore.regeneration` distribution is wrapped in `Independent`.
+        log_rate: `log c_tilde` (scalar or one per phase).
+        tour_length: mean tour duration `T = Z / c_tilde` (scalar or one per phase),
+            turned into `log_rate` by `calibrate` with a pilot estimate of `Z`.
+        bound: the thinning bound `Gamma` (diffusions only; scalar or one per phase).
+        phase_rule: function from the tour index (int array) to the phase index.
+        pilot_size: number of reference draws of the pilot estimate of `Z`.
+    """
+
+    def __init__(
+        self,
+        logdensity: Callable[[Array], Array],
+        dynamics: AbstractDynamics | Sequence[AbstractDynamics],
+        transfer,
+        *,
+        log_rate=None,
+        tour_length=None,
+        bound=None,
+        phase_rule: Callable[[Array], Array] | None = None,
+        pilot_size: int = 4096,
+        pilot: PilotEstimate | None = None,
+    ):
+        from .regeneration import AbstractRegeneration
+        from .transfer import Independent
+
+        wrap = lambda t: Independent(t) if isinstance(t, AbstractRegeneration) else t
+        transfer = tuple(wrap(t) for t in transfer) if isinstance(transfer, (list, tuple)) else wrap(transfer)
+        self._setup(logdensity, dynamics, transfer, log_rate, tour_length, bound, phase_rule, pilot_size, pilot)
