@@ -400,6 +400,19 @@ class AbstractRestore(eqx.Module):
         )
         return new_state, info
 
+    def kill_rate(self, position: Float[Array, " d"], phase: int | Array = 0) -> Float[Array, ""]:
+        """The kill rate `gamma(x) = L* p / p + c_tilde q / p` at one point (`+inf` where `p = 0`).
+
+        Negative values are returned as they are (there `c_tilde` is too small). Pass it
+        to `restore.rate_bound` to find a thinning bound over a region, e.g.
+        `restore.rate_bound(process.kill_rate, lower, upper, key=key).bound`.
+        """
+        log_rates = self._require_rate()
+        point, invalid = evaluate(self.logdensity, jnp.asarray(position), self.uses_gradient)
+        phase = jnp.asarray(phase, jnp.int32)
+        _, _, _, log_kill, adjoint = self._terms(phase, point, invalid, log_rates)
+        return adjoint + jnp.exp(log_kill)
+
     def advance_position(self, key: PRNGKeyArray, state: RestoreState, duration: Array) -> Array:
         """The position `duration` time units after `state`, given that no event happens before.
 

@@ -285,6 +285,18 @@ def test_bad_general_processes_are_rejected():
         restore.sample(process, jax.random.key(0), num_lanes=2, num_steps=2, weights="time", progress=False)
 
 
+def test_kill_rate_and_a_searched_bound():
+    """`kill_rate` is the Brownian closed form; `rate_bound` over a box finds its maximum there."""
+    process = restore.Restore(gaussian_logdensity, BrownianMotion(), Gaussian(jnp.zeros(2), jnp.eye(2)), log_rate=2.07, bound=1.0)
+    x = jnp.array([0.7, -0.4])
+    grad = -PRECISION @ x
+    expected = 0.5 * (grad @ grad - jnp.trace(PRECISION)) + np.exp(2.07) * np.exp(-0.5 * x @ x) / (2 * np.pi) / np.exp(gaussian_logdensity(x))
+    np.testing.assert_allclose(float(process.kill_rate(x)), float(expected), rtol=1e-10)
+    found = restore.rate_bound(process.kill_rate, -jnp.ones(2), jnp.ones(2), key=jax.random.key(0), safety=1.0)
+    grid = jnp.stack(jnp.meshgrid(jnp.linspace(-1, 1, 81), jnp.linspace(-1, 1, 81)), -1).reshape(-1, 2)
+    assert float(found.bound) >= float(jnp.max(jax.vmap(process.kill_rate)(grid))) * (1 - 1e-6)
+
+
 def test_too_small_a_constant_is_reported():
     """Brownian Restore with `c_tilde` far below the safe value: negative rates are counted and warned about."""
     process = restore.Restore(gaussian_logdensity, BrownianMotion(), Gaussian(jnp.zeros(2), jnp.eye(2)), log_rate=0.0, bound=100.0)
