@@ -24,6 +24,7 @@ from ._accumulators import (
 from ._observables import Observables
 from ._progress import progress_bar
 from ._result import SampleResult
+from ._sharding import Devices, LaneSharding, lane_sharding, map_devices, map_lanes, put, to_host
 
 Weights = Literal["rao_blackwell", "time"]
 
@@ -43,7 +44,11 @@ def _lane_keys(key: PRNGKeyArray, num_lanes: int) -> Array:
 
 
 @eqx.filter_jit
-def _init(sampler, keys: Array, positions: Array | None):
+def _init(sampler, keys: Array, positions: Array | None, sharding: LaneSharding | None = None):
+    if sharding is not None:
+        if positions is None:
+            return map_lanes(lambda s, k: s.init(k), sharding, sampler, keys)
+        return map_lanes(lambda s, k, x: s.init(k, x), sharding, sampler, keys, positions)
     if positions is None:
         return jax.vmap(sampler.init)(keys)
     return jax.vmap(sampler.init)(keys, positions)
@@ -55,7 +60,17 @@ def _active(carry: _Carry) -> Array:
 
 
 @eqx.filter_jit
-def _advance(sampler, observe: Observables, carry: _Carry, lane_keys: Array, length: Array, finishing: Array, thin: int, rao_blackwell: bool):
+def _advance(
+    sampler,
+    observe: Observables,
+    carry: _Carry,
+    lane_keys: Array,
+    length: Array,
+    finishing: Array,
+    thin: int,
+    rao_blackwell: bool,
+    sharding: LaneSharding | None = None,
+):
     """Run every lane for `length` steps, or (`finishing`) until each lane's open tour ends.
 
     One compiled program serves every chunk length and both modes (both are traced), so
@@ -65,22 +80,37 @@ def _advance(sampler, observe: Observables, carry: _Carry, lane_keys: Array, len
     tours (long tours are the ones likely to straddle the end). Finishing them makes the
     number of tours of each lane a stopping time, so by Wald's identity the pooled sums
     `sum F` and `sum T` have the right ratio of expectations.
+
+    With a `sharding` (static; `None` on one device) the lanes are split over a mesh:
+    the per-lane work (the sampler's step and the observables) and the histogram update
+    run under `shard_map`, each device on its own lanes and its own partial histogram,
+    and the carry's layout is pinned inside the loop. The only reduction over devices is
+    the "any lane still in a tour" test, evaluated only when finishing.
     """
 
     def cond(loop):
         carry, done = loop
+        if sharding is not None:  # no cross-device reduction per step unless finishing
+            return (done < length) & jax.lax.cond(finishing, lambda: jnp.any(_active(carry)), lambda: jnp.asarray(True))
         return (done < length) & (~finishing | jnp.any(_active(carry)))
 
     def body(loop):
         carry, done = loop
         keys = jax.vmap(lambda k: jax.random.fold_in(k, carry.step))(lane_keys)
-        new_states, info = jax.vmap(sampler.step)(keys, carry.states)
+        if sharding is None:
+            new_states, info = jax.vmap(sampler.step)(keys, carry.states)
+            observed = getattr(info, "position", carry.states.position)
+            values = jax.vmap(observe)(observed)
+        else:
+            lanes = map_lanes(_observed_step, sharding, (sampler, observe), keys, carry.states)
+            new_states, info, observed, values = lanes
         on = ~finishing | _active(carry)
         weight = jnp.where(on, info.expected_holding_time if rao_blackwell else info.holding_time, 0.0)
-        observed = getattr(info, "position", carry.states.position)
-        values = jax.vmap(observe)(observed)
         durations, ended = completed_durations(carry.sums, weight, info)
-        histogram = update_histogram(carry.histogram, durations, ended & on)
+        if sharding is None:
+            histogram = update_histogram(carry.histogram, durations, ended & on)
+        else:  # one partial histogram per device, summed on the host
+            histogram = map_devices(_update_partial_histogram, sharding, carry.histogram, durations, ended & on)
         keep = lambda new, old: jnp.where(on.reshape((-1,) + (1,) * (new.ndim - 1)), new, old)
         sums = jax.tree.map(keep, update_lane_sums(carry.sums, values, weight, info), carry.sums)
         states = jax.tree.map(keep, new_states, carry.states)
@@ -94,9 +124,45 @@ def _advance(sampler, observe: Observables, carry: _Carry, lane_keys: Array, len
                 draws,
                 draw_weights,
             )
-        return _Carry(states, sums, histogram, draws, draw_weights, carry.step + 1), done + 1
+        new = _Carry(states, sums, histogram, draws, draw_weights, carry.step + 1)
+        if sharding is not None:
+            new = jax.lax.with_sharding_constraint(new, _carry_shardings(new, sharding))
+        return new, done + 1
 
     return jax.lax.while_loop(cond, body, (carry, jnp.zeros((), jnp.int32)))
+
+
+def _observed_step(sampler_and_observe, key, state):
+    """One lane's step, with the state its weight refers to and the observables there."""
+    sampler, observe = sampler_and_observe
+    new_state, info = sampler.step(key, state)
+    observed = getattr(info, "position", state.position)
+    return new_state, info, observed, observe(observed)
+
+
+def _update_partial_histogram(histogram, durations, mask):
+    """Add one device's lanes to its partial histogram (a leading axis of length 1)."""
+    counts, times = update_histogram((histogram[0][0], histogram[1][0]), durations, mask)
+    return counts[None], times[None]
+
+
+def _carry_shardings(carry: _Carry, sharding: LaneSharding) -> _Carry:
+    """Lane axes split over the mesh; the partial histograms one per device; the step counter replicated."""
+    lanes = lambda tree: jax.tree.map(lambda _: sharding.lanes, tree)
+    return _Carry(
+        states=lanes(carry.states),
+        sums=lanes(carry.sums),
+        histogram=jax.tree.map(lambda _: sharding.lanes, carry.histogram),  # one row per device
+        draws=sharding.lanes_second,
+        draw_weights=sharding.lanes_second,
+        step=sharding.replicated,
+    )
+
+
+def _replicate(tree, sharding: LaneSharding):
+    """Every array leaf of `tree` (e.g. a sampler's parameters) replicated over the mesh."""
+    arrays, rest = eqx.partition(tree, eqx.is_array)
+    return eqx.combine(jax.tree.map(lambda x: put(x, sharding.replicated), arrays), rest)
 
 
 def _thinning(num_steps: int, num_lanes: int, max_draws: int, thin: int | None) -> tuple[int, int]:
@@ -122,6 +188,7 @@ def sample(
     progress: bool = True,
     num_chunks: int = 50,
     finish_tours: bool = True,
+    devices: Devices = None,
 ) -> SampleResult:
     """Run `num_lanes` independent lanes for `num_steps` steps each and stream estimates.
 
@@ -153,6 +220,26 @@ def sample(
             steps, usually a handful) until its open tour ends, so that tour-based
             estimates are not biased towards short tours. With `False` the open tours
             are dropped.
+        devices: shard the lanes over several devices. `None` (default): one device,
+            the default one. An int `n`: the first `n` of `jax.devices()`; `"all"`: all
+            of them; or a sequence of devices, or a `jax.sharding.Mesh` (the lane axis
+            is split over all of its axes). `num_lanes` must be divisible by the number
+            of devices. Everything lane-shaped (states, per-lane sums, lane keys, stored
+            draws) is split over a 1-d mesh with `NamedSharding`, and the jitted loop is
+            partitioned so that each device advances its own lanes (the per-lane step
+            under `shard_map`), with no communication between devices while the budget
+            runs; the tour histogram is kept as one partial histogram per device. Lane
+            keys do not depend on the layout, so a sharded run gives the same per-lane
+            paths as a run on one device. Results are gathered to the host as numpy
+            (partial histograms summed) and every estimate merges the per-lane sums by
+            summation, as on one device.
+            Several hosts: call `jax.distributed.initialize()` first in every process,
+            run the same program (same key, arguments and sampler) in each, and pass
+            `devices="all"` (the mesh spans `jax.devices()`, all global devices, so the
+            lanes are split across hosts); every process gets the full result. The
+            multi-host path is written to the documented multi-controller API but was
+            tested only with several (forced CPU) devices in one process; see
+            `docs/scaling.md`.
 
     Returns:
         A `SampleResult` with estimates, standard errors and diagnostics. Interrupting
@@ -165,6 +252,7 @@ def sample(
     if weights not in ("rao_blackwell", "time"):
         raise ValueError(f"weights must be 'rao_blackwell' or 'time', got {weights!r}")
     num_lanes, num_steps = int(num_lanes), int(num_steps)
+    sharding = lane_sharding(devices, num_lanes)
     if not hasattr(sampler, "init") or not hasattr(sampler, "step"):
         raise TypeError(f"sampler must have init and step methods, got {type(sampler).__name__}")
     if weights == "time" and getattr(sampler, "is_diffusion", False):
@@ -183,29 +271,51 @@ def sample(
             raise ValueError(f"positions must have shape (num_lanes, d) = ({num_lanes}, {dim}), got {positions.shape}")
         if not bool(jnp.all(jnp.isfinite(positions))):
             raise ValueError("positions must be finite")
-    states = _init(sampler, _lane_keys(key_init, num_lanes), positions)
+    init_keys = _lane_keys(key_init, num_lanes)
+    if sharding is not None:
+        sampler = _replicate(sampler, sharding)
+        init_keys = put(init_keys, sharding.lanes)
+        positions = None if positions is None else put(positions, sharding.lanes)
+    states = _init(sampler, init_keys, positions, sharding)
     dtype = states.logdensity.dtype
     observe = Observables(observables, dim, dtype)
 
     thin, stored = _thinning(num_steps, num_lanes, max_draws, thin)
-    carry = _Carry(
-        states=states,
-        sums=init_lane_sums(num_lanes, observe.size, dtype, jnp.full((num_lanes,), positions is not None)),
-        histogram=init_histogram(dtype),
-        draws=jnp.zeros((stored, num_lanes, dim), dtype),
-        draw_weights=jnp.zeros((stored, num_lanes), dtype),
-        step=jnp.zeros((), jnp.int32),
-    )
+
+    def start_carry(states):
+        histogram = init_histogram(dtype)
+        if sharding is not None:  # one partial histogram per device
+            histogram = jax.tree.map(lambda h: jnp.broadcast_to(h, (sharding.num_devices,) + h.shape), histogram)
+        return _Carry(
+            states=states,
+            sums=init_lane_sums(num_lanes, observe.size, dtype, jnp.full((num_lanes,), positions is not None)),
+            histogram=histogram,
+            draws=jnp.zeros((stored, num_lanes, dim), dtype),
+            draw_weights=jnp.zeros((stored, num_lanes), dtype),
+            step=jnp.zeros((), jnp.int32),
+        )
+
     lane_keys = _lane_keys(key_run, num_lanes)
+    if sharding is None:
+        carry = start_carry(states)
+    else:  # created in place on the devices, each holding its own lanes
+        layout = _carry_shardings(jax.eval_shape(start_carry, states), sharding)
+        carry = jax.jit(start_carry, in_shardings=(layout.states,), out_shardings=layout)(states)
+        lane_keys = put(lane_keys, sharding.lanes)
     chunk = math.ceil(num_steps / min(num_chunks, num_steps))
     rao_blackwell = weights == "rao_blackwell"
 
     start, done, interrupted = time.perf_counter(), 0, False
-    with progress_bar(num_steps, f"{type(sampler).__name__}: {num_lanes} lanes", enabled=progress) as advance:
+    label = f"{type(sampler).__name__}: {num_lanes} lanes"
+    if sharding is not None:
+        label += f" on {sharding.num_devices} devices"
+    with progress_bar(num_steps, label, enabled=progress) as advance:
         try:
             while done < num_steps:
                 length = min(chunk, num_steps - done)
-                carry, _ = _advance(sampler, observe, carry, lane_keys, jnp.asarray(length, jnp.int32), jnp.asarray(False), thin, rao_blackwell)
+                steps = jnp.asarray(length, jnp.int32)
+                finishing = jnp.asarray(False)
+                carry, _ = _advance(sampler, observe, carry, lane_keys, steps, finishing, thin, rao_blackwell, sharding)
                 carry = jax.block_until_ready(carry)
                 done += length
                 advance(length)
@@ -214,7 +324,10 @@ def sample(
             warnings.warn(f"interrupted after {done} of {num_steps} steps; returning the partial result", stacklevel=2)
     finishing_steps = unfinished = 0
     if getattr(sampler, "has_tours", False) and not interrupted and finish_tours:
-        carry, finishing_steps = _advance(sampler, observe, carry, lane_keys, jnp.asarray(num_steps, jnp.int32), jnp.asarray(True), thin, rao_blackwell)
+        budget = jnp.asarray(num_steps, jnp.int32)
+        carry, finishing_steps = _advance(
+            sampler, observe, carry, lane_keys, budget, jnp.asarray(True), thin, rao_blackwell, sharding
+        )
         finishing_steps, unfinished = int(finishing_steps), int(jnp.sum(_active(carry)))
         if unfinished:
             warnings.warn(
@@ -224,6 +337,9 @@ def sample(
                 stacklevel=2,
             )
     wall_time = time.perf_counter() - start
+    if sharding is not None:
+        carry = to_host(carry)  # numpy, gathered over devices (and processes)
+        carry = carry._replace(histogram=tuple(h.sum(axis=0) for h in carry.histogram))
 
     return SampleResult.from_run(
         sampler=sampler,

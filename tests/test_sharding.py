@@ -1,0 +1,159 @@
+"""Lanes sharded over several devices: the same per-lane paths and sums as on one device.
+
+Several devices are forced on the CPU (`XLA_FLAGS=--xla_force_host_platform_device_count=4`),
+which must be set before JAX starts, so the runs happen in subprocesses. The run on one
+device and the run on four devices go in two processes side by side (each compiles two
+samplers), and the test compares what they write.
+"""
+
+import json
+import os
+import subprocess
+import sys
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import restore
+from restore.local import RandomWalk
+from restore.regeneration import Gaussian
+
+NUM_DEVICES = 4
+
+
+def std_normal(x):
+    return -0.5 * jnp.sum(x**2)
+
+
+SCRIPT = r"""
+import json, sys, warnings
+import jax, jax.numpy as jnp, numpy as np
+jax.config.update("jax_enable_x64", True)
+import restore
+import restore._sample as sample_module
+from restore.dynamics import BrownianMotion
+from restore.local import RandomWalk
+from restore.regeneration import Gaussian
+
+mode, out = sys.argv[1], sys.argv[2]
+assert len(jax.devices()) == 4, jax.devices()
+report = {}
+
+# Record how the carry is laid out just before it is gathered to the host.
+gather = sample_module.to_host
+def spy(carry):
+    report.setdefault("shards", []).append([s.data.shape[0] for s in carry.sums.sum_t.addressable_shards])
+    return gather(carry)
+sample_module.to_host = spy
+
+if mode == "sharded":
+    try:
+        sampler = restore.JumpRestore(
+            lambda x: -0.5 * jnp.sum(x**2), RandomWalk(1.0), Gaussian(jnp.zeros(2), 2.0), log_rate=0.0
+        )
+        restore.sample(sampler, jax.random.key(0), num_lanes=6, num_steps=10, progress=False, devices=4)
+    except ValueError as err:
+        report["error"] = str(err)
+
+def logdensity(x):
+    return -0.5 * jnp.sum(x**2)
+
+jump = restore.JumpRestore(logdensity, RandomWalk(1.0), Gaussian(jnp.zeros(2), 2.0), log_rate=0.0)
+brownian = restore.Restore(logdensity, BrownianMotion(), Gaussian(jnp.zeros(2), 1.0), log_rate=2.0, bound=50.0)
+runs = {
+    "jump": (jump, 4 if mode == "sharded" else None),
+    "brownian": (brownian, jax.devices()[:4] if mode == "sharded" else None),
+}
+arrays = {}
+for name, (sampler, devices) in runs.items():
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        result = restore.sample(sampler, jax.random.key(7), num_lanes=8, num_steps=200, progress=False, devices=devices)
+    for field in result.sums._fields:
+        arrays[f"{name}/sums/{field}"] = getattr(result.sums, field)
+    arrays[f"{name}/draws"] = result.draws
+    arrays[f"{name}/draw_weights"] = result.draw_weights
+    arrays[f"{name}/histogram_counts"], arrays[f"{name}/histogram_times"] = result.histogram
+    for obs in ("x", "x**2"):
+        est = result.estimate(obs)
+        arrays[f"{name}/estimate/{obs}"] = np.stack([est.value, est.standard_error])
+    arrays[f"{name}/log_z"] = np.asarray(result.normalising_constant().value)
+    report[f"{name}/finishing_steps"] = result.finishing_steps
+np.savez(out + ".npz", **arrays)
+with open(out + ".json", "w") as f:
+    json.dump(report, f)
+"""
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("sharding")
+    env = {
+        **os.environ,
+        "XLA_FLAGS": f"--xla_force_host_platform_device_count={NUM_DEVICES}",
+        "JAX_PLATFORMS": "cpu",
+        "JAX_ENABLE_X64": "1",
+    }
+    procs = {
+        mode: subprocess.Popen(
+            [sys.executable, "-c", SCRIPT, mode, str(tmp / mode)],
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+        for mode in ("single", "sharded")
+    }
+    out = {}
+    for mode, proc in procs.items():
+        log, _ = proc.communicate(timeout=600)
+        assert proc.returncode == 0, f"{mode} run failed:\n{log}"
+        with np.load(tmp / f"{mode}.npz") as data:
+            arrays = dict(data)
+        out[mode] = (arrays, json.loads((tmp / f"{mode}.json").read_text()))
+    return out
+
+
+def test_sharded_lanes_match_one_device_bit_for_bit(runs):
+    single, sharded = runs["single"][0], runs["sharded"][0]
+    assert single.keys() == sharded.keys()
+    for name in single:
+        if name.endswith("histogram_times"):  # partial histograms are summed in another order
+            np.testing.assert_allclose(sharded[name], single[name], rtol=1e-12, err_msg=name)
+        else:
+            np.testing.assert_array_equal(sharded[name], single[name], err_msg=name)
+    report = runs["sharded"][1]
+    for name in ("jump", "brownian"):
+        assert report[f"{name}/finishing_steps"] == runs["single"][1][f"{name}/finishing_steps"]
+        assert single[f"{name}/histogram_counts"].sum() == single[f"{name}/sums/num_tours"].sum() > 20
+    # The lanes were split 2 per device before being gathered (the one-device path gathers nothing).
+    assert report["shards"] == [[2, 2, 2, 2]] * 2
+    assert "shards" not in runs["single"][1]
+
+
+def test_sharded_estimates_are_right(runs):
+    arrays = runs["sharded"][0]
+    for name in ("jump", "brownian"):
+        value, se = arrays[f"{name}/estimate/x**2"]
+        assert np.all(np.abs(value - 1.0) < 5 * se), (name, value, se)
+        value, se = arrays[f"{name}/estimate/x"]
+        assert np.all(np.abs(value) < 5 * se), (name, value, se)
+    assert abs(float(arrays["jump/log_z"]) - np.log(2 * np.pi)) < 0.5
+
+
+def test_lanes_must_split_evenly_over_the_devices(runs):
+    error = runs["sharded"][1]["error"]
+    assert "num_lanes (6) must be divisible by the number of devices (4)" in error
+
+
+def test_bad_devices_argument_is_rejected_before_any_work():
+    sampler = restore.JumpRestore(std_normal, RandomWalk(1.0), Gaussian(jnp.zeros(2), 2.0), log_rate=0.0)
+    count = len(jax.devices())
+    with pytest.raises(ValueError, match="devices are available"):
+        restore.sample(sampler, jax.random.key(0), num_lanes=8, num_steps=10, progress=False, devices=count + 1)
+    with pytest.raises(ValueError, match="devices must be"):
+        restore.sample(sampler, jax.random.key(0), num_lanes=8, num_steps=10, progress=False, devices="most")
+    with pytest.raises(TypeError, match="devices must be"):
+        restore.sample(sampler, jax.random.key(0), num_lanes=8, num_steps=10, progress=False, devices=[0, 1])
