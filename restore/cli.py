@@ -62,5 +62,55 @@ def demo(
     console.print(f"Plot written to {plot_demo(outcome, out)}")
 
 
+def _names(text: str | None) -> tuple[str, ...] | None:
+    return None if text is None else tuple(part.strip() for part in text.split(",") if part.strip())
+
+
+@app.command()
+def bench(
+    quick: bool = typer.Option(False, "--quick", help="Small subset (2-d and 10-d mixtures; jump Restore RW, MH RW, emcee stretch): a few minutes."),
+    medium: bool = typer.Option(False, "--medium", help="Every problem and sampler of the full mode with the quick budgets and 2 seeds."),
+    out: Path = typer.Option(Path("bench-results"), help="Folder for results.csv, results.md and the plots."),
+    seeds: int | None = typer.Option(None, min=1, help="Number of seeds (default: 2 quick, 3 full)."),
+    problems: str | None = typer.Option(None, help="Comma-separated problems to run (default: all of the mode)."),
+    samplers: str | None = typer.Option(None, help="Comma-separated sampler-name prefixes to keep, e.g. 'restore-rw,mh-rw,emcee'."),
+    progress: bool = typer.Option(True, help="Show a progress bar over the runs."),
+) -> None:
+    """Jump Restore against the MH baseline, emcee and BlackJAX, at equal evaluations and equal wall time."""
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    from .bench import SuiteConfig, check_dependencies, run_suite
+
+    if quick and medium:
+        console.print("[red]error:[/] choose at most one of --quick and --medium")
+        raise typer.Exit(code=1)
+    config = SuiteConfig.quick() if quick else SuiteConfig.medium() if medium else SuiteConfig.full()
+    changes = {k: v for k, v in (("seeds", seeds), ("problems", _names(problems)), ("samplers", _names(samplers))) if v is not None}
+    try:
+        config = config.replace(**changes)
+        check_dependencies(config)
+    except (ValueError, ImportError) as err:
+        console.print(f"[red]error:[/] {err}")
+        raise typer.Exit(code=1) from None
+    console.print(
+        f"[bold]{config.name} suite:[/] {', '.join(config.problems)}; {config.seeds} seed(s); "
+        f"full budget {config.full_evaluations:,} evaluations"
+    )
+    result = run_suite(config, out, progress=progress)
+
+    table = Table(title="Recorded ratios (jump Restore / other)")
+    for column, justify in (("ratio", "left"), ("problem", "left"), ("value", "right"), ("goal", "right"), ("met", "center")):
+        table.add_column(column, justify=justify)
+    summary_at = next((i for i, r in enumerate(result.ratios) if r.problem == "geometric mean"), None)
+    for i, r in enumerate(result.ratios):
+        met = {True: "[green]yes[/]", False: "[red]no[/]", None: ""}[r.met]
+        table.add_row(r.name, r.problem, f"{r.value:.3g}", r.goal, met, end_section=summary_at is not None and i == summary_at - 1)
+    console.print(table)
+    console.print(f"Suite took {result.seconds / 60:.1f} min. Files:")
+    for path in result.files.values():
+        console.print(f"  {path}")
+
+
 if __name__ == "__main__":  # pragma: no cover
     app()

@@ -1,0 +1,39 @@
+"""A side-by-side comparison suite: jump Restore against the MH baseline, emcee and BlackJAX.
+
+Every sampler gets the same starting information (random starts and the Laplace mixture
+built from them), the same target evaluations and the same wall time as jump Restore,
+measured in the same run, on problems with exact answers. `run_suite(SuiteConfig.quick(),
+"out/")` writes `results.csv`, `results.md` and plots; `restore bench` runs it from the
+command line. See `docs/comparison.md`.
+"""
+
+from ._blackjax_runner import BlackJAXRunner as BlackJAXRunner
+from ._config import SuiteConfig as SuiteConfig
+from ._emcee_runner import EmceeRunner as EmceeRunner
+from ._exact_runner import ExactRunner as ExactRunner
+from ._metrics import median_bandwidth as median_bandwidth
+from ._metrics import mmd as mmd
+from ._metrics import pooled_rms as pooled_rms
+from ._metrics import score as score
+from ._plots import plot_curves as plot_curves
+from ._plots import plot_ratios as plot_ratios
+from ._problems import PROBLEMS as PROBLEMS
+from ._problems import Problem as Problem
+from ._problems import Reference as Reference
+from ._problems import get_problem as get_problem
+from ._ratios import Ratio as Ratio
+from ._ratios import recorded_ratios as recorded_ratios
+from ._report import machine_description as machine_description
+from ._report import write_results as write_results
+from ._restore_runners import JumpRestoreRunner as JumpRestoreRunner
+from ._restore_runners import MixtureMHRunner as MixtureMHRunner
+from ._runner import Budget as Budget
+from ._runner import Runner as Runner
+from ._runner import RunOutput as RunOutput
+from ._starting import StartingInformation as StartingInformation
+from ._starting import starting_information as starting_information
+from ._suite import SuiteResult as SuiteResult
+from ._suite import check_dependencies as check_dependencies
+from ._suite import run_suite as run_suite
+from ._timing import Stopwatch as Stopwatch
+from ._timing import raw_rate as raw_rate
