@@ -74,7 +74,7 @@ def bench(
     seeds: int | None = typer.Option(None, min=1, help="Number of seeds (default: 2 quick, 3 full)."),
     problems: str | None = typer.Option(None, help="Comma-separated problems to run (default: all of the mode)."),
     samplers: str | None = typer.Option(None, help="Comma-separated sampler-name prefixes to keep, e.g. 'restore-rw,mh-rw,emcee'."),
-    progress: bool = typer.Option(True, help="Show a progress bar over the runs."),
+    progress: bool = typer.Option(True, help="Show a progress bar over the runs (without it: one line per run)."),
 ) -> None:
     """Jump Restore against the MH baseline, emcee and BlackJAX, at equal evaluations and equal wall time."""
     import jax
@@ -97,7 +97,7 @@ def bench(
         f"[bold]{config.name} suite:[/] {', '.join(config.problems)}; {config.seeds} seed(s); "
         f"full budget {config.full_evaluations:,} evaluations"
     )
-    result = run_suite(config, out, progress=progress)
+    result = run_suite(config, out, progress=progress, log=None if progress else console.print)
 
     table = Table(title="Recorded ratios (jump Restore / other)")
     for column, justify in (("ratio", "left"), ("problem", "left"), ("value", "right"), ("goal", "right"), ("met", "center")):

@@ -7,6 +7,7 @@ import importlib.util
 import math
 import time
 import zlib
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -85,8 +86,11 @@ def _progress(total: int, enabled: bool):
         yield (lambda text: bar.update(task, description=text)), (lambda: bar.advance(task))
 
 
-def run_suite(config: SuiteConfig, out_dir: str | Path | None = None, *, progress: bool = True) -> SuiteResult:
+def run_suite(config: SuiteConfig, out_dir: str | Path | None = None, *, progress: bool = True, log: Callable[[str], None] | None = None) -> SuiteResult:
     """Run `config` and (if `out_dir` is given) write `results.csv`, `results.md` and the plots there.
+
+    `log`, if given, is called with one line per finished run (e.g. `print`, for logs
+    where no progress bar can be drawn).
 
     Order within a problem and seed: jump Restore at each budget point first, then every
     other sampler at the evaluations jump Restore used (its matched kernel's run, same
@@ -126,6 +130,12 @@ def run_suite(config: SuiteConfig, out_dir: str | Path | None = None, *, progres
                         metrics = score(out, ref, config.max_points, seed)
                         rows.append(_row(problem, runner, seed, budget, out, metrics, start.num_modes_found, budget.amount))
                         advance()
+                        if log is not None:
+                            log(
+                                f"{name} seed {seed} {runner.name} {budget.kind} x{budget.fraction:g}: {out.evaluations:,} evaluations, "
+                                f"{out.run_time:.2f} s (+{out.compile_time:.1f} s compile), mode RMSE {metrics['mode_rmse']:.3g}, "
+                                f"mean error {metrics['mean_error']:.3g}, MMD {metrics['mmd']:.3g}"
+                            )
     result = SuiteResult(config, rows, raw_rates, recorded_ratios(rows, raw_rates), machine, time.perf_counter() - started)
     if out_dir is not None:
         result.files = write_results(result, Path(out_dir))
