@@ -41,6 +41,14 @@ def _version(package: str) -> str:
         return "not installed"
 
 
+def _affinity() -> str:
+    try:
+        cores = sorted(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return "unknown"
+    return f"{len(cores)} ({', '.join(map(str, cores))})"
+
+
 def machine_description() -> dict[str, str]:
     """CPU, cores, load, library versions and the date: what the timings depend on."""
     load = os.getloadavg() if hasattr(os, "getloadavg") else (math.nan,) * 3
@@ -48,6 +56,7 @@ def machine_description() -> dict[str, str]:
         "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
         "cpu": _cpu_name(),
         "cores": str(os.cpu_count()),
+        "cores this process may use": _affinity(),
         "load average at start (1, 5, 15 min)": ", ".join(f"{x:.2f}" for x in load),
         "platform": platform.platform(),
         "python": platform.python_version(),
