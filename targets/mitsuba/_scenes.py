@@ -1,0 +1,457 @@
+"""Test scenes for the primary-sample-space target, built as Mitsuba scene dictionaries.
+
+Every scene is made in code (nothing is downloaded), renders with the `path` integrator
+at a given `max_depth`, and uses an `hdrfilm` with a *box* reconstruction filter, so that
+each camera path contributes to exactly one pixel. Only area lights are used: a delta
+light (point, spot, directional) would make caustics impossible for a path tracer and
+breaks gradient-based moves.
+
+`load_scene` accepts a registry name, a scene dictionary or the path of a Mitsuba XML file.
+"""
+
+from __future__ import annotations
+
+import copy
+import os
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ._llvm import load_mitsuba
+
+DEFAULT_RESOLUTION = (128, 128)
+DEFAULT_MAX_DEPTH = 8
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def _mi() -> Any:
+    return load_mitsuba()
+
+
+def _film(resolution: Sequence[int]) -> dict[str, Any]:
+    width, height = _resolution(resolution)
+    return {
+        "type": "hdrfilm",
+        "width": width,
+        "height": height,
+        "rfilter": {"type": "box"},
+        "pixel_format": "rgb",
+        "component_format": "float32",
+    }
+
+
+def _resolution(resolution: Sequence[int]) -> tuple[int, int]:
+    try:
+        width, height = (int(r) for r in resolution)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"resolution must be a pair (width, height), got {resolution!r}") from err
+    if width < 1 or height < 1 or (width, height) != tuple(resolution):
+        raise ValueError(f"resolution must be two positive integers, got {resolution!r}")
+    return width, height
+
+
+def _max_depth(max_depth: int) -> int:
+    if isinstance(max_depth, bool) or not isinstance(max_depth, (int, np.integer)) or max_depth < 1:
+        raise ValueError(f"max_depth must be an integer >= 1, got {max_depth!r}")
+    return int(max_depth)
+
+
+def _camera(mi: Any, resolution: Sequence[int], origin, target, fov: float, spp: int = 16) -> dict[str, Any]:
+    return {
+        "type": "perspective",
+        "fov": fov,
+        "fov_axis": "smaller",
+        "near_clip": 0.001,
+        "far_clip": 100.0,
+        "to_world": mi.ScalarTransform4f().look_at(origin=origin, target=target, up=[0, 1, 0]),
+        "sampler": {"type": "independent", "sample_count": spp},
+        "film": _film(resolution),
+    }
+
+
+def _diffuse(rgb: Sequence[float], two_sided: bool = True) -> dict[str, Any]:
+    bsdf = {"type": "diffuse", "reflectance": {"type": "rgb", "value": list(rgb)}}
+    return {"type": "twosided", "bsdf": bsdf} if two_sided else bsdf
+
+
+def _quad(mi: Any, center, half_u, half_v, bsdf: dict[str, Any], emitter: dict | None = None) -> dict[str, Any]:
+    """A rectangle `center + s half_u + t half_v`, `s, t in [-1, 1]`; normal along `half_u x half_v`."""
+    c, u, v = (np.asarray(a, dtype=float) for a in (center, half_u, half_v))
+    n = np.cross(u, v)
+    n /= np.linalg.norm(n)
+    matrix = np.eye(4)
+    matrix[:3, 0], matrix[:3, 1], matrix[:3, 2], matrix[:3, 3] = u, v, n, c
+    shape = {"type": "rectangle", "to_world": mi.ScalarTransform4f(matrix.tolist()), "bsdf": bsdf}
+    if emitter is not None:
+        shape["emitter"] = emitter
+    return shape
+
+
+def _area_light(radiance: Sequence[float]) -> dict[str, Any]:
+    return {"type": "area", "radiance": {"type": "rgb", "value": list(radiance)}}
+
+
+def _path_integrator(max_depth: int) -> dict[str, Any]:
+    return {"type": "path", "max_depth": _max_depth(max_depth)}
+
+
+# --------------------------------------------------------------------------- scenes
+
+
+def cornell_box(
+    *, resolution: Sequence[int] = DEFAULT_RESOLUTION, max_depth: int = DEFAULT_MAX_DEPTH
+) -> dict[str, Any]:
+    """Mitsuba's classic Cornell box (`mi.cornell_box()`) with a box filter.
+
+    Camera: at `(0, 0, 3.9)` looking down `-z` into the open side of the box (red wall on
+    the left, green on the right, the small ceiling light visible at the top).
+    """
+    mi = _mi()
+    scene = mi.cornell_box()
+    scene["sensor"]["film"] = _film(resolution)
+    scene["integrator"] = _path_integrator(max_depth)
+    return scene
+
+
+def door_ajar(
+    *, resolution: Sequence[int] = DEFAULT_RESOLUTION, max_depth: int = DEFAULT_MAX_DEPTH
+) -> dict[str, Any]:
+    """A dark room lit only through a door left ajar into a lit neighbouring room.
+
+    Geometry (y up, all rectangles, two-sided diffuse): the dark room spans
+    `x in [-2, 2], y in [0, 2.5], z in [0, 4]`; the lit room `z in [-3, 0]`. They share the
+    wall `z = 0`, which has a doorway `x in [0.4, 1.2], y in [0, 2]`; the door, hinged at
+    `x = 1.2`, is opened 15 degrees into the lit room. An area light on the lit room's
+    ceiling, out of sight of the camera, faces down. Camera: inside the dark room at
+    `(-1.6, 1.4, 3.8)` looking at the door, `(0.6, 0.9, 0)`; almost every pixel receives
+    light only after several bounces through the gap.
+    """
+    mi = _mi()
+    white, grey, door = _diffuse([0.8, 0.8, 0.8]), _diffuse([0.6, 0.6, 0.55]), _diffuse([0.55, 0.35, 0.2])
+    x0, x1, h, z_dark, z_lit = -2.0, 2.0, 2.5, 4.0, -3.0
+    door_lo, door_hi, door_h = 0.4, 1.2, 2.0
+    cx, w = 0.5 * (x0 + x1), 0.5 * (x1 - x0)
+
+    def box_walls(prefix: str, z_a: float, z_b: float) -> dict[str, Any]:
+        cz, d = 0.5 * (z_a + z_b), 0.5 * abs(z_b - z_a)
+        return {
+            f"{prefix}-floor": _quad(mi, [cx, 0, cz], [w, 0, 0], [0, 0, -d], white),
+            f"{prefix}-ceiling": _quad(mi, [cx, h, cz], [w, 0, 0], [0, 0, d], white),
+            f"{prefix}-left": _quad(mi, [x0, h / 2, cz], [0, 0, d], [0, h / 2, 0], grey),
+            f"{prefix}-right": _quad(mi, [x1, h / 2, cz], [0, h / 2, 0], [0, 0, d], grey),
+            f"{prefix}-end": _quad(mi, [cx, h / 2, z_b], [w, 0, 0], [0, h / 2, 0], white),
+        }
+
+    angle = np.deg2rad(15.0)
+    half_door = 0.5 * (door_hi - door_lo)
+    # The door swings about its hinge (x = door_hi, z = 0) into the lit room (z < 0).
+    door_dir = np.array([-np.cos(angle), 0.0, -np.sin(angle)])
+    scene: dict[str, Any] = {
+        "type": "scene",
+        "integrator": _path_integrator(max_depth),
+        "sensor": _camera(mi, resolution, [-1.6, 1.4, 3.8], [0.6, 0.9, 0.0], fov=60.0),
+        **box_walls("dark", 0.0, z_dark),
+        **box_walls("lit", 0.0, z_lit),
+        # The shared wall z = 0, minus the doorway.
+        "wall-left": _quad(
+            mi, [0.5 * (x0 + door_lo), h / 2, 0], [0.5 * (door_lo - x0), 0, 0], [0, h / 2, 0], white
+        ),
+        "wall-right": _quad(
+            mi, [0.5 * (door_hi + x1), h / 2, 0], [0.5 * (x1 - door_hi), 0, 0], [0, h / 2, 0], white
+        ),
+        "wall-top": _quad(
+            mi,
+            [0.5 * (door_lo + door_hi), 0.5 * (door_h + h), 0],
+            [half_door, 0, 0],
+            [0, 0.5 * (h - door_h), 0],
+            white,
+        ),
+        "door": _quad(
+            mi,
+            np.array([door_hi, door_h / 2, 0.0]) + half_door * door_dir,
+            half_door * door_dir,
+            [0, door_h / 2, 0],
+            door,
+        ),
+        "light": _quad(
+            mi,
+            [-1.0, h - 1e-3, -2.0],
+            [0.4, 0, 0],
+            [0, 0, 0.4],  # normal (0.4, 0, 0) x (0, 0, 0.4) points down
+            _diffuse([0.0, 0.0, 0.0], two_sided=False),
+            _area_light([600.0, 540.0, 450.0]),
+        ),
+    }
+    return scene
+
+
+def caustic(
+    *, resolution: Sequence[int] = DEFAULT_RESOLUTION, max_depth: int = DEFAULT_MAX_DEPTH
+) -> dict[str, Any]:
+    """A glass sphere on a diffuse floor under a small area light: a refractive caustic.
+
+    Geometry: floor `y = 0` and back wall `z = -2`; a dielectric sphere (IOR 1.5) of
+    radius 0.5 centred at `(0, 0.5, 0)`; a small square area light (side 0.3) at height 3,
+    offset to `(0.6, 3, 0.4)`, facing down. Camera: at `(0, 2.2, 4)` looking at
+    `(0, 0.3, 0)`. The caustic under the sphere is reachable only by BSDF sampling
+    through the glass hitting the small light.
+    """
+    mi = _mi()
+    floor = _diffuse([0.75, 0.75, 0.75])
+    return {
+        "type": "scene",
+        "integrator": _path_integrator(max_depth),
+        "sensor": _camera(mi, resolution, [0.0, 2.2, 4.0], [0.0, 0.3, 0.0], fov=40.0),
+        "floor": _quad(mi, [0, 0, 0], [4, 0, 0], [0, 0, -4], floor),
+        "back": _quad(mi, [0, 2, -2], [4, 0, 0], [0, 2, 0], _diffuse([0.6, 0.65, 0.7])),
+        "sphere": {
+            "type": "sphere",
+            "center": [0.0, 0.5, 0.0],
+            "radius": 0.5,
+            "bsdf": {"type": "dielectric", "int_ior": 1.5, "ext_ior": 1.0},
+        },
+        "light": _quad(
+            mi,
+            [0.6, 3.0, 0.4],
+            [0.15, 0, 0],
+            [0, 0, 0.15],
+            _diffuse([0.0, 0.0, 0.0], two_sided=False),
+            _area_light([300.0, 280.0, 250.0]),
+        ),
+    }
+
+
+def glass_torus(
+    *,
+    resolution: Sequence[int] = DEFAULT_RESOLUTION,
+    max_depth: int = DEFAULT_MAX_DEPTH,
+    segments: tuple[int, int] = (48, 24),
+) -> dict[str, Any]:
+    """A diffuse torus inside a closed glass box on a floor, lit by an area light.
+
+    Geometry: floor `y = 0`; a dielectric cube (IOR 1.5) of half-size 0.7 centred at
+    `(0, 0.71, 0)`; inside it a torus (radii 0.45 and 0.15, a triangle mesh built from
+    `segments`) centred at `(0, 0.71, 0)` and tilted 60 degrees about `x`; a square area
+    light (side 1) at height 3 facing down. Camera: at `(2.4, 2.0, 3.2)` looking at
+    `(0, 0.6, 0)`. Light reaches the torus only through the glass (specular chains).
+    """
+    mi = _mi()
+    centre = np.array([0.0, 0.71, 0.0])
+    torus = torus_mesh(0.45, 0.15, segments, bsdf=_diffuse([0.8, 0.3, 0.15]), centre=centre, tilt_deg=60.0)
+    return {
+        "type": "scene",
+        "integrator": _path_integrator(max_depth),
+        "sensor": _camera(mi, resolution, [2.4, 2.0, 3.2], [0.0, 0.6, 0.0], fov=40.0),
+        "floor": _quad(mi, [0, 0, 0], [5, 0, 0], [0, 0, -5], _diffuse([0.7, 0.7, 0.7])),
+        "glass": {
+            "type": "cube",
+            "to_world": mi.ScalarTransform4f().translate(centre.tolist()).scale(0.7),
+            "bsdf": {"type": "dielectric", "int_ior": 1.5, "ext_ior": 1.0},
+        },
+        "torus": torus,
+        "light": _quad(
+            mi,
+            [0.3, 3.0, 0.2],
+            [0.5, 0, 0],
+            [0, 0, 0.5],
+            _diffuse([0.0, 0.0, 0.0], two_sided=False),
+            _area_light([25.0, 25.0, 25.0]),
+        ),
+    }
+
+
+def torus_mesh(
+    major_radius: float,
+    minor_radius: float,
+    segments: tuple[int, int],
+    *,
+    bsdf: dict[str, Any],
+    centre: Sequence[float] = (0.0, 0.0, 0.0),
+    tilt_deg: float = 0.0,
+) -> Any:
+    """A closed triangle-mesh torus (an `mi.Mesh`) with smooth vertex normals.
+
+    The torus lies in the `xz` plane around `centre`, rotated by `tilt_deg` about `x`;
+    `segments = (around the ring, around the tube)`.
+    """
+    mi = _mi()
+    import drjit as dr
+
+    n_ring, n_tube = (int(s) for s in segments)
+    if n_ring < 3 or n_tube < 3:
+        raise ValueError(f"segments must both be >= 3, got {segments!r}")
+    if not 0 < minor_radius < major_radius:
+        raise ValueError("need 0 < minor_radius < major_radius")
+    phi = 2 * np.pi * np.arange(n_ring) / n_ring
+    theta = 2 * np.pi * np.arange(n_tube) / n_tube
+    P, T = np.meshgrid(phi, theta, indexing="ij")
+    radial = major_radius + minor_radius * np.cos(T)
+    verts = np.stack([radial * np.cos(P), minor_radius * np.sin(T), radial * np.sin(P)], axis=-1).reshape(-1, 3)
+    c, s = np.cos(np.deg2rad(tilt_deg)), np.sin(np.deg2rad(tilt_deg))
+    rotation = np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
+    verts = verts @ rotation.T + np.asarray(centre, dtype=float)
+
+    i, j = np.meshgrid(np.arange(n_ring), np.arange(n_tube), indexing="ij")
+    a = i * n_tube + j
+    b = ((i + 1) % n_ring) * n_tube + j
+    c_ = ((i + 1) % n_ring) * n_tube + (j + 1) % n_tube
+    d = i * n_tube + (j + 1) % n_tube
+    faces = np.concatenate([np.stack([a, d, b], -1).reshape(-1, 3), np.stack([b, d, c_], -1).reshape(-1, 3)])
+
+    props = mi.Properties()
+    props["bsdf"] = mi.load_dict(bsdf)
+    mesh = mi.Mesh("torus", len(verts), len(faces), props=props, has_vertex_normals=True)
+    params = mi.traverse(mesh)
+    params["vertex_positions"] = dr.ravel(mi.Point3f(*(verts.T.astype(np.float32).copy())))
+    params["faces"] = dr.ravel(mi.Vector3u(*(faces.T.astype(np.uint32).copy())))
+    params.update()
+    mesh.recompute_vertex_normals()
+    return mesh
+
+
+SCENES: dict[str, Callable[..., dict[str, Any]]] = {
+    "cornell_box": cornell_box,
+    "door_ajar": door_ajar,
+    "caustic": caustic,
+    "glass_torus": glass_torus,
+}
+
+
+# --------------------------------------------------------------------------- loading
+
+
+def scene_dict(
+    spec: str | Mapping[str, Any], resolution: Sequence[int] | None = None, max_depth: int | None = None
+) -> dict[str, Any]:
+    """The scene dictionary for a registry name or a dictionary, with the overrides applied.
+
+    For a user dictionary, `resolution` and `max_depth` replace the film size and the
+    `path` integrator depth (other integrator settings, e.g. `rr_depth`, are kept; a
+    scene without a `path` integrator gets one); the film's filter is always a box.
+    """
+    if isinstance(spec, str):
+        if spec not in SCENES:
+            raise ValueError(f"unknown scene name {spec!r}; known scenes: {', '.join(sorted(SCENES))}")
+        kwargs: dict[str, Any] = {}
+        if resolution is not None:
+            kwargs["resolution"] = _resolution(resolution)
+        if max_depth is not None:
+            kwargs["max_depth"] = _max_depth(max_depth)
+        return SCENES[spec](**kwargs)
+    if not isinstance(spec, Mapping):
+        raise TypeError(f"a scene must be a name, a dict or a path, got {type(spec).__name__}")
+    scene = _copy_dict(spec)
+    sensors = [v for v in scene.values() if isinstance(v, dict) and v.get("type") in _SENSOR_TYPES]
+    for sensor in sensors:
+        film = sensor.setdefault("film", {"type": "hdrfilm"})
+        film["rfilter"] = {"type": "box"}
+        if resolution is not None:
+            film["width"], film["height"] = _resolution(resolution)
+    if max_depth is not None:
+        integrators = [k for k, v in scene.items() if isinstance(v, dict) and v.get("type") == "path"]
+        for key in integrators:
+            scene[key]["max_depth"] = _max_depth(max_depth)
+        if not integrators:
+            scene["integrator"] = _path_integrator(max_depth)
+    return scene
+
+
+def load_scene(
+    spec: str | Path | Mapping[str, Any],
+    resolution: Sequence[int] | None = None,
+    max_depth: int | None = None,
+) -> Any:
+    """Load a scene as an `mi.Scene` (the Mitsuba variant is chosen by `load_mitsuba`).
+
+    Arguments:
+        spec: a name in `SCENES`, a Mitsuba scene dictionary, or the path of a Mitsuba
+            XML file (see `is_scene_file`).
+        resolution: `(width, height)` of the film, or `None` to keep the scene's.
+        max_depth: the `path` integrator's maximum depth, or `None` to keep the scene's.
+
+    The film's reconstruction filter is replaced by a box filter (XML files included):
+    the primary-sample-space target assigns each path to exactly one pixel.
+
+    Raises:
+        FileNotFoundError: for a path that does not exist.
+        ValueError: for an unknown name, or an XML file Mitsuba cannot parse.
+    """
+    mi = _mi()
+    if is_scene_file(spec):
+        return _load_xml(mi, Path(spec), resolution, max_depth)
+    scene = scene_dict(spec, resolution, max_depth)
+    try:
+        return mi.load_dict(scene)
+    except Exception as err:
+        raise ValueError(f"Mitsuba could not load the scene dictionary: {err}") from err
+
+
+def is_scene_file(spec: Any) -> bool:
+    """Whether `spec` names a scene file: a `Path`, or a string that is not a registry name
+    and ends in `.xml`, contains a path separator or names an existing file."""
+    if isinstance(spec, Path):
+        return True
+    if not isinstance(spec, str) or spec in SCENES:
+        return False
+    return spec.lower().endswith(".xml") or os.sep in spec or "/" in spec or os.path.isfile(spec)
+
+
+_SENSOR_TYPES = {"perspective", "thinlens", "orthographic", "radiancemeter", "irradiancemeter"}
+
+
+def _copy_dict(d: Mapping[str, Any]) -> dict[str, Any]:
+    """A copy of the nested dicts of `d`; Mitsuba objects in it are shared, not copied."""
+    out: dict[str, Any] = {}
+    for key, value in d.items():
+        if isinstance(value, Mapping):
+            out[key] = _copy_dict(value)
+        elif isinstance(value, list):
+            out[key] = copy.copy(value)
+        else:
+            out[key] = value
+    return out
+
+
+def _load_xml(mi: Any, path: Path, resolution: Sequence[int] | None, max_depth: int | None) -> Any:
+    path = path.expanduser()
+    if not path.is_file():
+        raise FileNotFoundError(f"Mitsuba scene file not found: {str(path)!r}")
+    config = mi.parser.ParserConfig(mi.variant())
+    try:
+        state = mi.parser.parse_file(config, str(path))
+        mi.parser.transform_all(config, state)
+        _override_xml(mi, state, resolution, max_depth)
+        scene = mi.parser.instantiate(config, state)
+    except Exception as err:
+        raise ValueError(f"Mitsuba could not load the scene file {str(path)!r}: {err}") from err
+    if not isinstance(scene, mi.Scene):
+        raise ValueError(f"the file {str(path)!r} does not describe a Mitsuba scene")
+    return scene
+
+
+def _override_xml(mi: Any, state: Any, resolution: Sequence[int] | None, max_depth: int | None) -> None:
+    """Box filters on every film, then the resolution and `path` depth overrides, on parsed XML."""
+    nodes = state.nodes
+    box = mi.ObjectType.ReconstructionFilter
+    for node in nodes:
+        if node.type == box:
+            node.props = mi.Properties("box")
+    for node in list(nodes):
+        props = node.props
+        if node.type == mi.ObjectType.Film:
+            refs = [props[k] for k in props.keys() if isinstance(props[k], mi.Properties.ResolvedReference)]
+            if not any(nodes[r.index()].type == box for r in refs):
+                filter_node = mi.parser.SceneNode()
+                filter_node.type = box
+                filter_node.props = mi.Properties("box")
+                nodes.append(filter_node)
+                props["rfilter"] = mi.Properties.ResolvedReference(len(nodes) - 1)
+            if resolution is not None:
+                props["width"], props["height"] = _resolution(resolution)
+        elif node.type == mi.ObjectType.Integrator and max_depth is not None and props.plugin_name() == "path":
+            props["max_depth"] = _max_depth(max_depth)
+        node.props = props

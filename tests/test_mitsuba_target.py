@@ -1,0 +1,399 @@
+"""Tests of `targets.mitsuba`: the primary-sample-space (PSS) path tracer against Mitsuba.
+
+Skipped unless the `mitsuba` extra is installed (Mitsuba is never imported before
+`load_mitsuba` has chosen Dr.Jit's libLLVM). Scenes are tiny (16x16, depth 3-4) so the
+file runs in well under a minute on one core; every random quantity has a fixed seed.
+
+The agreement tests compare the uniform-PSS image with Mitsuba's own `path` integrator
+through independent replicas of both: per-pixel and per-4x4-block z-scores built from
+the replicas' sample variances, and the z-score of the image total. Wrong MIS weights
+(e.g. weights that do not sum to one) or a missing next-event estimate bias whole
+regions by tens of percent and fail them by a wide margin.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+
+
+def _extra_installed() -> bool:
+    """Whether Mitsuba and Dr.Jit are installed, without importing them (see the module docstring)."""
+    try:
+        return all(importlib.util.find_spec(name) is not None for name in ("mitsuba", "drjit"))
+    except (ImportError, ValueError):
+        return False
+
+
+if not _extra_installed():
+    pytest.skip("the `mitsuba` extra is not installed", allow_module_level=True)
+
+import jax
+import jax.numpy as jnp
+
+from targets.mitsuba import (
+    SCENES,
+    LLVMNotFoundError,
+    PrimarySampleSpace,
+    UnsupportedSceneError,
+    cornell_box,
+    dimension,
+    find_libllvm,
+    load_mitsuba,
+    load_scene,
+    native_paths_per_second,
+    reference_image,
+    render_native,
+    render_native_for,
+)
+from targets.mitsuba import _llvm
+
+LUMINANCE = np.array([0.212671, 0.715160, 0.072169])
+REPLICAS = 16
+RES = 16
+
+
+@pytest.fixture(scope="module")
+def mi():
+    try:
+        return load_mitsuba("llvm_ad_rgb")
+    except LLVMNotFoundError as err:  # Mitsuba without a usable libLLVM: nothing to test here
+        pytest.skip(str(err))
+
+
+@pytest.fixture(scope="module")
+def cornell(mi):
+    return PrimarySampleSpace("cornell_box", resolution=(RES, RES), max_depth=4)
+
+
+@pytest.fixture(scope="module")
+def cornell_smooth(mi):
+    return PrimarySampleSpace("cornell_box", resolution=(RES, RES), max_depth=3, russian_roulette=False)
+
+
+# --------------------------------------------------------------------------- agreement
+
+
+def _agreement_z(target: PrimarySampleSpace, spp: int) -> dict[str, np.ndarray]:
+    """z-scores of (PSS - native) luminance per pixel, per 4x4 block and for the total."""
+    pss = np.stack([target.render_uniform(spp, seed=100 + r) for r in range(REPLICAS)])
+    native = np.stack(
+        [render_native(target.scene, spp, seed=200 + r, max_depth=target.max_depth) for r in range(REPLICAS)]
+    )
+    a, b = pss.astype(np.float64) @ LUMINANCE, native.astype(np.float64) @ LUMINANCE
+    h, w = a.shape[1:]
+    views = {
+        "pixel": (a.reshape(REPLICAS, -1), b.reshape(REPLICAS, -1)),
+        "block": (
+            a.reshape(REPLICAS, h // 4, 4, w // 4, 4).sum((2, 4)).reshape(REPLICAS, -1),
+            b.reshape(REPLICAS, h // 4, 4, w // 4, 4).sum((2, 4)).reshape(REPLICAS, -1),
+        ),
+        "total": (a.sum((1, 2))[:, None], b.sum((1, 2))[:, None]),
+    }
+    out = {}
+    for name, (x, y) in views.items():
+        se = np.sqrt(x.var(0, ddof=1) / REPLICAS + y.var(0, ddof=1) / REPLICAS)
+        se += 1e-5 * (np.abs(x.mean(0)) + np.abs(y.mean(0)))  # float32 rounding (directly seen lights)
+        keep = se > 0
+        assert keep.mean() > 0.5, f"{name}: too many black {name}s"
+        out[name] = (x.mean(0) - y.mean(0))[keep] / se[keep]
+    return out
+
+
+def _assert_agree(z: dict[str, np.ndarray]) -> None:
+    # With 16 replicas each z is roughly Student-t with ~30 degrees of freedom.
+    assert np.mean(z["pixel"] ** 2) < 1.5, f"per-pixel mean z^2 = {np.mean(z['pixel'] ** 2):.2f}"
+    assert np.mean(z["block"] ** 2) < 2.5, f"per-block mean z^2 = {np.mean(z['block'] ** 2):.2f}"
+    assert np.abs(z["block"]).max() < 4.5, f"max block |z| = {np.abs(z['block']).max():.2f}"
+    assert abs(z["total"][0]) < 4.0, f"total z = {z['total'][0]:.2f}"
+
+
+def test_uniform_pss_matches_native_cornell_box(cornell):
+    _assert_agree(_agreement_z(cornell, spp=32))
+
+
+def test_uniform_pss_matches_native_caustic(mi):
+    target = PrimarySampleSpace("caustic", resolution=(RES, RES), max_depth=4)
+    _assert_agree(_agreement_z(target, spp=32))
+
+
+def test_uniform_pss_matches_native_large_light(mi):
+    # Direct light only, from a light covering most of the ceiling: BSDF and light
+    # sampling have comparable densities, so MIS weights that do not sum to one (e.g. a
+    # wrong light pdf in the weight of BSDF-sampled hits) bias the image visibly.
+    scene = cornell_box(resolution=(RES, RES), max_depth=2)
+    scene["light"]["to_world"] = mi.ScalarTransform4f().translate([0, 0.99, 0]).rotate([1, 0, 0], 90).scale(
+        [0.9, 0.9, 1]
+    )
+    scene["light"]["emitter"]["radiance"]["value"] = [1.5, 1.2, 0.9]
+    _assert_agree(_agreement_z(PrimarySampleSpace(scene), spp=32))
+
+
+def test_russian_roulette_matches_native(mi):
+    scene = cornell_box(resolution=(RES, RES), max_depth=4)
+    scene["integrator"]["rr_depth"] = 1  # roulette from the first bounce on
+    target = PrimarySampleSpace(scene)
+    assert target.rr_depth == 1
+    _assert_agree(_agreement_z(target, spp=32))
+
+
+# --------------------------------------------------------------------------- gradients
+
+
+def _check_gradient(target: PrimarySampleSpace, n: int, seed: int) -> int:
+    """Compare `evaluate_with_grad` with central differences where `log p` is smooth; returns #checked."""
+    d = target.dim
+    u = np.random.default_rng(seed).uniform(0.02, 0.98, (n, d)).astype(np.float32)
+    samples, grad = target.evaluate_with_grad(u)
+    assert np.all(np.isfinite(grad))
+    assert np.all(grad[samples.luminance == 0] == 0)
+    np.testing.assert_array_equal(samples.luminance, target.evaluate(u).luminance)
+
+    steps = (2e-3, 5e-4)
+    shifted = [u]
+    for h in steps:
+        for sign in (1, -1):
+            for k in range(d):
+                v = u.copy()
+                v[:, k] += np.float32(sign * h)
+                shifted.append(v)
+    with np.errstate(divide="ignore"):
+        logp = np.log(target.evaluate(np.concatenate(shifted)).luminance.astype(np.float64)).reshape(-1, n)
+    base = logp[0]
+    diffs = {}
+    for i, h in enumerate(steps):
+        plus = logp[1 + 2 * i * d : 1 + (2 * i + 1) * d].T
+        minus = logp[1 + (2 * i + 1) * d : 1 + (2 * i + 2) * d].T
+        with np.errstate(invalid="ignore"):
+            diffs[h] = ((plus - minus) / (2 * h), (plus - base[:, None]) / h, (base[:, None] - minus) / h)
+    central, forward, backward = diffs[steps[1]]
+    coarse = diffs[steps[0]][0]
+
+    def close(a, b, tol):
+        return np.abs(a - b) <= tol * (1 + np.abs(b))
+
+    with np.errstate(invalid="ignore"):
+        # Smooth: finite, equal one-sided slopes (no kink, e.g. the concentric disk map's
+        # diagonals) and step-size independent (no jump, e.g. visibility).
+        smooth = (
+            (samples.luminance > 0)
+            & np.all(np.isfinite(central) & np.isfinite(coarse), axis=1)
+            & np.all(close(forward, backward, 0.05) & close(coarse, central, 0.02), axis=1)
+        )
+    assert smooth.sum() >= n // 4, f"only {smooth.sum()} of {n} points are smooth"
+    np.testing.assert_allclose(grad[smooth], central[smooth], rtol=0.02, atol=0.02)
+    return int(smooth.sum())
+
+
+def test_gradient_matches_finite_differences_cornell_box(cornell_smooth):
+    _check_gradient(cornell_smooth, n=400, seed=1)
+
+
+def test_gradient_matches_finite_differences_through_glass(mi):
+    # Dielectric lobes: Mitsuba's sample weights carry parameter-gradient tricks that the
+    # tracer must replace for derivatives with respect to the primary samples.
+    target = PrimarySampleSpace("caustic", resolution=(RES, RES), max_depth=4, russian_roulette=False)
+    _check_gradient(target, n=300, seed=2)
+
+
+# --------------------------------------------------------------------------- pixels, wrapping, JAX
+
+
+def test_pixel_index_matches_tracer(cornell):
+    rng = np.random.default_rng(3)
+    u = rng.uniform(-2, 3, (2000, cornell.dim)).astype(np.float32)
+    edges = np.array([0.0, 1 / RES, 0.5, 1 - 2**-24, 1.0, -(2**-30), 7 / RES - 1], dtype=np.float32)
+    u[: len(edges) ** 2, 0] = np.repeat(edges, len(edges))
+    u[: len(edges) ** 2, 1] = np.tile(edges, len(edges))
+    traced = cornell.evaluate(u).pixel
+    assert traced.dtype == np.int32 and traced.min() >= 0 and traced.max() < cornell.num_pixels
+    np.testing.assert_array_equal(np.asarray(cornell.pixel_index(jnp.asarray(u))), traced)
+    np.testing.assert_array_equal(np.asarray(jax.jit(cornell.pixel_index)(jnp.asarray(u, jnp.float64))), traced)
+    # The documented mapping: x = floor(u0 W), y = floor(u1 H), pixel = y W + x.
+    w = np.mod(u[len(edges) ** 2 :, :2].astype(np.float64), 1.0)
+    expect = np.floor(w[:, 1] * RES) * RES + np.floor(w[:, 0] * RES)
+    np.testing.assert_array_equal(traced[len(edges) ** 2 :], expect.astype(np.int32))
+
+
+def test_points_wrap_around_the_torus(cornell):
+    u = np.random.default_rng(4).integers(0, 4096, (500, cornell.dim)) / 4096  # exact in float32
+    a = cornell.evaluate(u)
+    b = cornell.evaluate(u + np.random.default_rng(5).integers(-3, 4, u.shape))
+    for x, y in zip(a, b):
+        np.testing.assert_array_equal(x, y)
+
+
+def test_jax_bridge_under_jit_and_vmap(cornell):
+    u = np.random.default_rng(6).random((300, cornell.dim))
+    samples, grad = cornell.evaluate_with_grad(u)
+    ref = cornell.evaluate(u)
+    np.testing.assert_array_equal(samples.luminance, ref.luminance)
+
+    lum, rgb = jax.jit(cornell.jax_evaluate)(jnp.asarray(u))
+    np.testing.assert_array_equal(np.asarray(lum), ref.luminance)
+    np.testing.assert_array_equal(np.asarray(rgb), ref.rgb)
+
+    lum_v, rgb_v = jax.jit(jax.vmap(cornell.jax_evaluate))(jnp.asarray(u))  # per-point calls, one callback
+    np.testing.assert_array_equal(np.asarray(lum_v), ref.luminance)
+    np.testing.assert_array_equal(np.asarray(rgb_v), ref.rgb)
+
+    lum_g, rgb_g, grad_g = jax.jit(cornell.jax_evaluate_with_grad)(jnp.asarray(u))
+    np.testing.assert_array_equal(np.asarray(lum_g), samples.luminance)
+    np.testing.assert_array_equal(np.asarray(grad_g), grad)
+
+    def total_log_density(x):
+        logp = cornell.jax_log_density(x)
+        return jnp.sum(jnp.where(jnp.isfinite(logp), logp, 0.0))
+
+    np.testing.assert_allclose(np.asarray(jax.jit(jax.grad(total_log_density))(jnp.asarray(u))), grad, rtol=1e-6)
+
+
+def test_evaluate_rejects_bad_points(cornell):
+    with pytest.raises(ValueError, match=r"shape \(N, 20\)"):
+        cornell.evaluate(np.zeros((4, 3)))
+    bad = np.full((2, cornell.dim), 0.5)
+    bad[1, 3] = np.nan
+    with pytest.raises(ValueError, match="finite"):
+        cornell.evaluate(bad)
+    assert cornell.evaluate(np.zeros((0, cornell.dim))).luminance.shape == (0,)
+
+
+# --------------------------------------------------------------------------- scenes and errors
+
+
+def test_registry_scenes_load_with_box_filter(mi):
+    for name, build in SCENES.items():
+        scene = load_scene(name, resolution=(8, 6), max_depth=2)
+        film = scene.sensors()[0].film()
+        assert film.rfilter().class_name() == "BoxFilter", name
+        assert tuple(film.crop_size()) == (8, 6), name
+        assert build(resolution=(8, 6), max_depth=2)["integrator"] == {"type": "path", "max_depth": 2}
+    # The door-ajar room never sees its light directly, and few pixels receive direct light.
+    door = PrimarySampleSpace("door_ajar", resolution=(RES, RES), max_depth=2)
+    direct = door.render_uniform(8, seed=7)
+    assert np.all(PrimarySampleSpace(door.scene, max_depth=1).render_uniform(2) == 0)
+    assert 0 < np.mean(direct.sum(-1) > 0) < 0.3
+
+
+def test_xml_scene_gets_box_filter_and_overrides(mi, tmp_path):
+    path = tmp_path / "scene.xml"
+    path.write_text(
+        """<scene version="3.0.0">
+  <integrator type="path"><integer name="max_depth" value="5"/></integrator>
+  <sensor type="perspective">
+    <transform name="to_world"><lookat origin="0,0,4" target="0,0,0" up="0,1,0"/></transform>
+    <film type="hdrfilm"><integer name="width" value="32"/><integer name="height" value="24"/>
+      <rfilter type="gaussian"/></film>
+  </sensor>
+  <shape type="sphere"><bsdf type="diffuse"/></shape>
+  <shape type="rectangle"><transform name="to_world"><translate z="2"/></transform>
+    <emitter type="area"><rgb name="radiance" value="1"/></emitter></shape>
+</scene>"""
+    )
+    target = PrimarySampleSpace(path, resolution=(8, 4))
+    assert target.resolution == (8, 4) and target.max_depth == 5 and target.dim == dimension(5)
+    assert target.scene.sensors()[0].film().rfilter().class_name() == "BoxFilter"
+    assert PrimarySampleSpace(str(path), max_depth=2).max_depth == 2
+
+
+def test_scene_errors(mi, tmp_path):
+    missing = tmp_path / "nowhere.xml"
+    with pytest.raises(FileNotFoundError, match="nowhere.xml"):
+        load_scene(missing)
+    broken = tmp_path / "broken.xml"
+    broken.write_text('<scene version="3.0.0">\n  <shape type="sphere"><bsdf type="diffuse"/>\n</scene>\n')
+    with pytest.raises(ValueError, match=r"broken\.xml.*(mismatch|[Pp]ars)") as info:
+        load_scene(broken)
+    assert "Mitsuba could not load" in str(info.value)
+    with pytest.raises(ValueError, match="cornell_box"):
+        load_scene("cornel_box")
+    with pytest.raises(ValueError, match="max_depth"):
+        PrimarySampleSpace("cornell_box", resolution=(4, 4), max_depth=0)
+
+
+def test_delta_lights_are_rejected_for_gradients(mi, cornell):
+    cornell.check_gradient_support()  # an area light is fine
+    scene = cornell_box(resolution=(8, 8), max_depth=3)
+    del scene["light"]
+    scene["bulb"] = {"type": "point", "position": [0.0, 0.9, 0.0], "intensity": {"type": "rgb", "value": 5.0}}
+    target = PrimarySampleSpace(scene)
+    assert target.evaluate(np.full((4, target.dim), 0.5)).luminance.shape == (4,)
+    with pytest.raises(UnsupportedSceneError, match="PointLight.*area light"):
+        target.check_gradient_support()
+
+
+def test_unsupported_camera_is_rejected(mi):
+    scene = cornell_box(resolution=(8, 8), max_depth=2)
+    scene["sensor"]["type"] = "thinlens"
+    scene["sensor"]["aperture_radius"] = 0.1
+    with pytest.raises(UnsupportedSceneError, match="aperture"):
+        PrimarySampleSpace(scene)
+
+
+def test_find_libllvm_explains_what_to_install(monkeypatch, tmp_path):
+    monkeypatch.setenv("DRJIT_LIBLLVM_PATH", str(tmp_path / "libLLVM-missing.so"))
+    monkeypatch.setattr(_llvm, "SYSTEM_LIB_DIRS", (str(tmp_path),))
+    monkeypatch.setattr(_llvm, "_karellen_libraries", lambda: [])
+    (tmp_path / "libLLVM-15.so.1").write_bytes(b"")  # too old: crashes Dr.Jit
+    with pytest.raises(LLVMNotFoundError) as info:
+        find_libllvm()
+    message = str(info.value)
+    assert "libLLVM-missing.so" in message
+    assert "pip install 'restore-mcmc[mitsuba]'" in message
+    assert "DRJIT_LIBLLVM_PATH" in message and ">= 16" in message
+    assert isinstance(info.value, RuntimeError)
+
+
+def test_find_libllvm_search_order(monkeypatch, tmp_path):
+    for name in ("libLLVM-15.so", "libLLVM.so.19.1", "libLLVM-17.so"):
+        (tmp_path / name).write_bytes(b"")
+    karellen = tmp_path / "wheel" / "libLLVM.so.23.1"
+    karellen.parent.mkdir()
+    karellen.write_bytes(b"")
+    monkeypatch.setattr(_llvm, "SYSTEM_LIB_DIRS", (str(tmp_path),))
+    monkeypatch.setattr(_llvm, "_karellen_libraries", lambda: [karellen])
+    monkeypatch.delenv("DRJIT_LIBLLVM_PATH", raising=False)
+    assert find_libllvm() == tmp_path / "libLLVM.so.19.1"  # newest system library >= 16
+    monkeypatch.setenv("DRJIT_LIBLLVM_PATH", str(tmp_path / "libLLVM-15.so"))
+    assert find_libllvm() == tmp_path / "libLLVM-15.so"  # an explicit choice is honoured
+    monkeypatch.setenv("DRJIT_LIBLLVM_PATH", "")
+    monkeypatch.setattr(_llvm, "SYSTEM_LIB_DIRS", (str(tmp_path / "empty"),))
+    assert find_libllvm() == karellen
+
+
+# --------------------------------------------------------------------------- native renders and timing
+
+
+def test_reference_image_is_cached(mi, tmp_path):
+    first = reference_image("cornell_box", 4, resolution=(8, 8), max_depth=2, cache_dir=tmp_path)
+    files = list(tmp_path.glob("*.exr"))
+    assert len(files) == 1 and first.shape == (8, 8, 3)
+    os.utime(files[0], (0, 0))
+    again = reference_image("cornell_box", 4, resolution=(8, 8), max_depth=2, cache_dir=tmp_path)
+    np.testing.assert_array_equal(again, first)
+    assert files[0].stat().st_mtime == 0  # read back, not re-rendered
+    reference_image("cornell_box", 8, resolution=(8, 8), max_depth=2, cache_dir=tmp_path)
+    assert len(list(tmp_path.glob("*.exr"))) == 2  # another key for another spp
+    assert not list(Path(tmp_path).glob(".*"))  # no temporary files left
+
+
+def test_render_native_for_spends_the_time(mi):
+    scene = load_scene("cornell_box", resolution=(8, 8), max_depth=2)
+    result = render_native_for(scene, 0.2, chunk_spp=2)
+    assert result.seconds >= 0.2 and result.spp >= 2 and result.spp % 2 == 0
+    assert result.image.shape == (8, 8, 3) and np.all(np.isfinite(result.image))
+
+
+def test_report_paths_per_second(mi):
+    """PSS target vs native `path` throughput on the Cornell box (printed, not asserted)."""
+    target = PrimarySampleSpace("cornell_box", resolution=(64, 64), max_depth=4)
+    pss = target.paths_per_second(n=1 << 16, repeats=2)
+    native = native_paths_per_second(target.scene, spp=16, max_depth=4, repeats=2)
+    print(f"\nCornell box 64x64, max_depth 4: PSS {pss:,.0f} paths/s, native {native:,.0f} paths/s, "
+          f"ratio {pss / native:.2f}")
+    assert pss > 0 and native > 0
