@@ -112,5 +112,135 @@ def bench(
         console.print(f"  {path}")
 
 
+def _fail(message: str) -> None:
+    console.print(f"[bold red]error:[/] {message}")
+    raise typer.Exit(code=2)
+
+
+def _resolution(text: str) -> tuple[int, int]:
+    try:
+        parts = [int(v) for v in text.lower().split("x")]
+    except ValueError:
+        parts = []
+    if len(parts) == 1:
+        parts = parts * 2
+    if len(parts) != 2 or min(parts) < 1:
+        _fail(f"--resolution must look like 128 or 160x120, got {text!r}")
+    return parts[0], parts[1]
+
+
+@app.command()
+def render(
+    scene: str = typer.Argument(..., help="A built-in scene (cornell_box, door_ajar, caustic, glass_torus) or a Mitsuba XML file."),
+    method: str = typer.Option("restore", help="path (Mitsuba's integrator), uniform, pssmlt, restore, mala-restore or erpt."),
+    time_budget: float | None = typer.Option(None, "--time", min=1e-3, help="Wall-time budget in seconds (compilation excluded)."),
+    evaluations: int | None = typer.Option(None, min=1, help="Path budget instead of (or as well as) a time budget."),
+    out: Path = typer.Option(Path("render.exr"), help="Image to write (.exr, or .npy); a tonemapped .png preview is written beside it."),
+    resolution: str = typer.Option("128", help="Film size, e.g. 128 or 160x120."),
+    max_depth: int = typer.Option(5, min=1, help="Maximum path depth (as in Mitsuba's path integrator)."),
+    lanes: int = typer.Option(16384, min=1, help="Parallel lanes of the PSS renderers."),
+    tour_length: float = typer.Option(32.0, min=1e-6, help="Restore's mean tour length; PSSMLT's large-step probability is 1/(1 + it)."),
+    seed: int = typer.Option(0, help="Random seed."),
+    progress: bool = typer.Option(True, help="Show a progress bar."),
+) -> None:
+    """Render a Mitsuba scene with Metropolis Restore, a baseline, or Mitsuba's own path tracer."""
+    from .render._methods import GRADIENT_METHODS, METHODS
+
+    if method not in METHODS:
+        _fail(f"unknown method {method!r}; choose from {', '.join(METHODS)}")
+    if time_budget is None and evaluations is None:
+        _fail("give a budget: --time SECONDS and/or --evaluations N")
+    if out.suffix.lower() not in (".exr", ".npy"):
+        _fail(f"--out must end in .exr or .npy, got {out.name!r}")
+    if not out.parent.is_dir():
+        _fail(f"folder {out.parent} does not exist")
+    width, height = _resolution(resolution)
+    try:
+        from targets.mitsuba import LLVMNotFoundError, UnsupportedSceneError
+    except ImportError as error:  # pragma: no cover - targets ships with the package
+        _fail(str(error))
+    try:
+        image, summary = _render(scene, method, time_budget, evaluations, (width, height), max_depth, lanes, tour_length, seed, progress, method in GRADIENT_METHODS)
+    except (FileNotFoundError, UnsupportedSceneError, LLVMNotFoundError, ImportError) as error:
+        _fail(str(error))
+    except ValueError as error:
+        _fail(str(error))
+    from .render._images import save_image
+
+    save_image(out, image)
+    preview = save_image(out.with_suffix(".png"), image)
+    console.print(summary)
+    console.print(f"Image written to {out} (preview {preview})")
+
+
+def _render(scene, method, seconds, evaluations, resolution, max_depth, lanes, tour_length, seed, progress, needs_gradient):
+    """Run one render; returns the image and a one-line summary."""
+    import jax
+    import numpy as np
+
+    from targets.mitsuba import PrimarySampleSpace, load_scene, render_native, render_native_for
+
+    loaded = load_scene(scene, resolution, max_depth)
+    if method == "path":
+        pixels = resolution[0] * resolution[1]
+        if evaluations is not None and seconds is None:
+            spp = max(1, evaluations // pixels)
+            image = render_native(loaded, spp, seed=seed, max_depth=max_depth)
+            return image, f"path: {spp} spp ({spp * pixels:,} paths)"
+        native = render_native_for(loaded, seconds, max_depth=max_depth, seed=seed)
+        return native.image, f"path: {native.spp} spp ({native.spp * pixels:,} paths) in {native.seconds:.1f} s"
+    from .render import render as run_render
+    from .render._methods import make_renderer
+
+    target = PrimarySampleSpace(loaded, russian_roulette=not needs_gradient)
+    if needs_gradient:
+        target.check_gradient_support()
+    result = run_render(
+        target, make_renderer(method, tour_length=tour_length), key=jax.random.key(seed), seconds=seconds,
+        evaluations=evaluations, lanes=lanes, progress=progress,
+    )
+    stats = ", ".join(f"{k} {v:.4g}" for k, v in result.statistics.items() if np.isfinite(v))
+    return result.image, (
+        f"{method}: {result.evaluations:,} paths in {result.seconds:.1f} s (+{result.compile_seconds:.1f} s compile), "
+        f"{result.evaluations_per_second:,.0f} paths/s; {stats}"
+    )
+
+
+@app.command("render-compare")
+def render_compare(
+    scenes: str = typer.Option("cornell_box,door_ajar,caustic,glass_torus", help="Comma-separated scenes (names or XML files)."),
+    methods: str = typer.Option("path,uniform,pssmlt,restore,mala-restore,erpt", help="Comma-separated methods."),
+    time_budget: float = typer.Option(10.0, "--time", min=1e-3, help="Seconds per render (compilation excluded)."),
+    realisations: int = typer.Option(3, min=1, help="Independent renders per method and scene."),
+    resolution: str = typer.Option("64", help="Film size, e.g. 64 or 96x64."),
+    max_depth: int = typer.Option(5, min=1, help="Maximum path depth."),
+    lanes: int = typer.Option(16384, min=1, help="Parallel lanes of the PSS renderers."),
+    tour_length: float = typer.Option(32.0, min=1e-6, help="Restore's mean tour length (PSSMLT and ERPT are matched to it)."),
+    reference_spp: int = typer.Option(4096, min=1, help="Samples per pixel of the cached reference."),
+    out: Path = typer.Option(Path("render-results"), help="Folder for results.md, results.csv and the figures."),
+    progress: bool = typer.Option(True, help="Progress bars (without: one line per render)."),
+) -> None:
+    """Every method at equal time on each scene against a cached reference: figures, a table and the ratios."""
+    from .render._compare import compare_renderers
+
+    try:
+        result = compare_renderers(
+            _names(scenes), _names(methods), seconds=time_budget, realisations=realisations,
+            resolution=_resolution(resolution), max_depth=max_depth, lanes=lanes, tour_length=tour_length,
+            reference_spp=reference_spp, out_dir=out, progress=progress, log=console.print,
+        )
+    except (FileNotFoundError, ValueError, ImportError, RuntimeError) as error:
+        _fail(str(error))
+    table = Table(title="Rendering ratios")
+    for column in ("ratio", "scene", "value", "goal"):
+        table.add_column(column)
+    for name, scene, value, goal in result.ratios():
+        table.add_row(name, scene, f"{value:.3g}", goal)
+    console.print(table)
+    console.print("Files:")
+    for path in result.files.values():
+        console.print(f"  {path}")
+
+
 if __name__ == "__main__":  # pragma: no cover
     app()

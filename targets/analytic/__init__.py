@@ -16,3 +16,4 @@ from ._funnel import Funnel as Funnel
 from ._gaussian_mixture import GaussianMixture as GaussianMixture
 from ._ring import Ring as Ring
 from ._student_t_mixture import StudentTMixture as StudentTMixture
+from ._pss_image import AnalyticImage as AnalyticImage

@@ -1,0 +1,39 @@
+"""Light-transport renderers in primary sample space (PSS), in JAX.
+
+A PSS target (`PSSTarget`) maps points `u` of the torus `[0, 1)^D` to a luminance (the
+density the renderers sample) and an RGB value; the image is
+`I_j = W H ∫ rgb(u) 1{pixel(u) = j} du = W H Z E_p[rgb / lum 1{pixel = j}]` with
+`p = lum` and `Z = ∫ lum du`. Renderers share the same small step (`KelemenMutation`)
+and the same large step (a uniform draw):
+- `MetropolisRestore` and `MALARestore`: jump Restore, killed at `c / lum`, uniform regeneration.
+- `PSSMLT`: Kelemen et al.'s Metropolis light transport with expected-value splatting.
+- `ERPT`: energy redistribution path tracing, in rounds of equal-deposition chains.
+- `UniformSampler`: plain PSS path tracing (the sanity baseline).
+`render` runs any of them to a time or evaluation budget; `restore.render` metrics
+(`l1`, `mse`, `relative_mse`, `mrse`, `mape`, `variance_across`) compare images.
+"""
+
+from ._driver import RenderResult as RenderResult
+from ._driver import render as render
+from ._erpt import ERPT as ERPT
+from ._film import empty_film as empty_film
+from ._film import splat as splat
+from ._local import MALAKernel as MALAKernel
+from ._local import MetropolisKernel as MetropolisKernel
+from ._mala_restore import MALARestore as MALARestore
+from ._metrics import l1 as l1
+from ._metrics import mape as mape
+from ._metrics import mrse as mrse
+from ._metrics import mse as mse
+from ._metrics import relative_mse as relative_mse
+from ._metrics import variance_across as variance_across
+from ._metropolis_restore import MetropolisRestore as MetropolisRestore
+from ._mutations import AbstractMutation as AbstractMutation
+from ._mutations import KelemenMutation as KelemenMutation
+from ._mutations import WrappedGaussianMutation as WrappedGaussianMutation
+from ._pss import PSSPoint as PSSPoint
+from ._pss import PSSTarget as PSSTarget
+from ._pssmlt import PSSMLT as PSSMLT
+from ._renderer import AbstractRenderer as AbstractRenderer
+from ._restore_renderer import AbstractPSSRestore as AbstractPSSRestore
+from ._uniform import UniformSampler as UniformSampler

@@ -1,0 +1,300 @@
+"""Equal-time comparison of the renderers on Mitsuba scenes: images, error curves, a table and the ratios.
+
+For each scene: a cached high-spp reference (Mitsuba's `path` integrator), then every
+method for `seconds` of wall time (compilation excluded), `realisations` times with
+independent keys. Errors are measured against the reference; error-versus-time curves
+come from the progressive images. Writes `results.md`, `results.csv` and one figure per
+scene (`scene-<name>.png`: reference and method images, zoomed crops, error curves).
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import math
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from ._driver import render
+from ._methods import GRADIENT_METHODS, METHODS, make_renderer
+from ._metrics import l1, mape, mrse, mse, relative_mse, variance_across
+
+CSV_COLUMNS = ("scene", "method", "realisation", "seconds", "evaluations", "l1", "mse", "relative_mse", "mrse", "mape")
+
+
+@dataclasses.dataclass
+class MethodRun:
+    """One render of one method on one scene, with its error curve `(seconds, relative MSE)`."""
+
+    scene: str
+    method: str
+    realisation: int
+    image: np.ndarray
+    seconds: float
+    evaluations: int
+    metrics: dict[str, float]
+    curve: list[tuple[float, float]]
+
+
+@dataclasses.dataclass
+class RenderComparison:
+    """Everything `compare_renderers` measured."""
+
+    scenes: tuple[str, ...]
+    methods: tuple[str, ...]
+    seconds: float
+    realisations: int
+    resolution: tuple[int, int]
+    max_depth: int
+    references: dict[str, np.ndarray]
+    runs: list[MethodRun]
+    throughput: dict[str, tuple[float, float]]  # scene -> (PSS paths/s, native paths/s)
+    skipped: dict[tuple[str, str], str]
+    files: dict[str, Path] = dataclasses.field(default_factory=dict)
+
+    def mean_metric(self, scene: str, method: str, metric: str = "relative_mse") -> float:
+        values = [r.metrics[metric] for r in self.runs if r.scene == scene and r.method == method]
+        return float(np.mean(values)) if values else math.nan
+
+    def ratios(self) -> list[tuple[str, str, float, str]]:
+        """`(ratio, scene, value, goal)` rows: throughput, Restore / PSSMLT and Restore / path tracing."""
+        rows = []
+        for scene in self.scenes:
+            if scene in self.throughput:
+                pss, native = self.throughput[scene]
+                rows.append(("PSS paths/s / native path samples/s", scene, pss / native, ">= 0.5"))
+        for scene in self.scenes:
+            for other, goal in (("pssmlt", "<= 0.8"), ("path", "< 1")):
+                value = self.mean_metric(scene, "restore") / self.mean_metric(scene, other)
+                if math.isfinite(value):
+                    rows.append((f"relative MSE, Metropolis Restore / {other}", scene, value, goal))
+        return rows
+
+
+def _metrics(image: np.ndarray, reference: np.ndarray) -> dict[str, float]:
+    return {
+        "l1": l1(image, reference), "mse": mse(image, reference), "relative_mse": relative_mse(image, reference),
+        "mrse": mrse(image, reference), "mape": mape(image, reference),
+    }
+
+
+def _native_run(scene, reference, seconds: float, max_depth: int, seed: int):
+    """Mitsuba's `path` integrator, progressively in passes of 4 spp, for `seconds`; returns image, spp, time, curve."""
+    from targets.mitsuba import render_native
+
+    render_native(scene, 1, seed=10**6 + seed, max_depth=max_depth)  # compile the kernels outside the budget
+    total, spp, curve = None, 0, []
+    start = time.perf_counter()
+    while True:
+        image = render_native(scene, 4, seed=seed * 100_003 + spp, max_depth=max_depth).astype(np.float64)
+        total = image * 4 if total is None else total + image * 4
+        spp += 4
+        elapsed = time.perf_counter() - start
+        curve.append((elapsed, relative_mse(total / spp, reference)))
+        if elapsed >= seconds:
+            return (total / spp).astype(np.float32), spp, elapsed, curve
+
+
+def compare_renderers(
+    scenes: Sequence[str] = ("cornell_box", "door_ajar", "caustic", "glass_torus"),
+    methods: Sequence[str] = METHODS,
+    *,
+    seconds: float = 10.0,
+    realisations: int = 3,
+    resolution: tuple[int, int] = (64, 64),
+    max_depth: int = 5,
+    lanes: int = 16384,
+    tour_length: float = 32.0,
+    reference_spp: int = 4096,
+    out_dir: str | Path | None = None,
+    progress: bool = True,
+    log: Callable[[str], None] | None = None,
+) -> RenderComparison:
+    """Render every method on every scene at equal time and compare with a reference.
+
+    Arguments:
+        scenes: registry names (`targets.mitsuba.SCENES`) or XML paths.
+        methods: among `METHODS`; gradient methods are skipped (and noted) on scenes they do not support.
+        seconds: wall time per render, compilation excluded.
+        realisations: independent renders per method (for the variance across realisations).
+        resolution, max_depth: the film and path length, for every method and the reference.
+        lanes: parallel lanes of the PSS renderers.
+        tour_length: Restore's mean tour length; PSSMLT's large-step probability and ERPT's chain length match it.
+        reference_spp: samples per pixel of the cached reference.
+        out_dir: where to write `results.md`, `results.csv` and the figures (nothing written if `None`).
+        progress: progress bars for each render.
+        log: called with one line per finished render.
+    """
+    from targets.mitsuba import PrimarySampleSpace, UnsupportedSceneError, load_scene, native_paths_per_second, reference_image
+
+    bad = [m for m in methods if m not in METHODS]
+    if bad:
+        raise ValueError(f"unknown methods {bad}; choose from {', '.join(METHODS)}")
+    if not seconds > 0 or realisations < 1:
+        raise ValueError(f"need seconds > 0 and realisations >= 1, got {seconds} and {realisations}")
+    say = log or (lambda text: None)
+    references, runs, throughput, skipped = {}, [], {}, {}
+    for scene_name in scenes:
+        scene_key = Path(scene_name).stem
+        references[scene_key] = reference = reference_image(scene_name, reference_spp, resolution=resolution, max_depth=max_depth)
+        scene = load_scene(scene_name, resolution, max_depth)
+        target = PrimarySampleSpace(scene)
+        throughput[scene_key] = (target.paths_per_second(), native_paths_per_second(scene, max_depth=max_depth))
+        for method in methods:
+            pss_target = target
+            if method in GRADIENT_METHODS:
+                try:
+                    pss_target = PrimarySampleSpace(scene, russian_roulette=False)
+                    pss_target.check_gradient_support()
+                except UnsupportedSceneError as error:
+                    skipped[(scene_key, method)] = str(error)
+                    say(f"{scene_key} {method}: skipped ({error})")
+                    continue
+            for r in range(realisations):
+                if method == "path":
+                    image, spp, elapsed, curve = _native_run(scene, reference, seconds, max_depth, seed=r)
+                    evaluations = spp * resolution[0] * resolution[1]
+                else:
+                    stamps: list[tuple[float, float]] = []
+                    result = render(
+                        pss_target, make_renderer(method, tour_length=tour_length), key=jax.random.key(1000 * r + 7),
+                        seconds=seconds, lanes=lanes, progress=progress,
+                        on_update=lambda img, _s: stamps.append((time.perf_counter(), relative_mse(img, reference))),
+                    )
+                    shift = stamps[-1][0] - result.seconds if stamps else 0.0
+                    curve = [(t - shift, e) for t, e in stamps]
+                    image, elapsed, evaluations = result.image, result.seconds, result.evaluations
+                run = MethodRun(scene_key, method, r, image, elapsed, evaluations, _metrics(image, reference), curve)
+                runs.append(run)
+                say(f"{scene_key} {method} #{r}: {elapsed:.1f} s, {evaluations:,} paths, relative MSE {run.metrics['relative_mse']:.4g}")
+    comparison = RenderComparison(
+        tuple(Path(s).stem for s in scenes), tuple(methods), float(seconds), realisations, tuple(resolution), max_depth,
+        references, runs, throughput, skipped,
+    )
+    if out_dir is not None:
+        write_comparison(comparison, Path(out_dir))
+    return comparison
+
+
+def _fmt(x: float) -> str:
+    return "-" if not math.isfinite(x) else f"{x:.3g}"
+
+
+def markdown(comparison: RenderComparison) -> str:
+    """The results page: ratios, per-scene tables and figures."""
+    from restore.bench._report import machine_description
+
+    c = comparison
+    lines = [
+        "# Rendering comparison at equal time",
+        "",
+        f"{len(c.scenes)} scene(s) at {c.resolution[0]}x{c.resolution[1]}, max depth {c.max_depth}; every method "
+        f"renders for {c.seconds:g} s (compilation excluded), {c.realisations} independent realisation(s). Errors "
+        "against a cached high-spp reference of Mitsuba's `path` integrator; relative MSE uses eps = 0.01.",
+        "",
+        "## Ratios",
+        "",
+        "| ratio | scene | value | goal |",
+        "|---|---|---|---|",
+    ]
+    lines += [f"| {name} | {scene} | **{_fmt(value)}** | {goal} |" for name, scene, value, goal in c.ratios()]
+    for scene in c.scenes:
+        lines += [
+            "",
+            f"## {scene}",
+            "",
+            "| method | paths (mean) | relative MSE | MRSE | MAPE | L1 | MSE | variance across realisations |",
+            "|---|---|---|---|---|---|---|---|",
+        ]
+        for method in c.methods:
+            runs = [r for r in c.runs if r.scene == scene and r.method == method]
+            if not runs:
+                if (scene, method) in c.skipped:
+                    lines.append(f"| {method} | skipped: {c.skipped[(scene, method)]} | | | | | | |")
+                continue
+            var = variance_across([r.image for r in runs]) if len(runs) > 1 else math.nan
+            m = lambda k: float(np.mean([r.metrics[k] for r in runs]))  # noqa: E731
+            lines.append(
+                f"| {method} | {np.mean([r.evaluations for r in runs]):,.0f} | {_fmt(m('relative_mse'))} | {_fmt(m('mrse'))} | "
+                f"{_fmt(m('mape'))} | {_fmt(m('l1'))} | {_fmt(m('mse'))} | {_fmt(var)} |"
+            )
+        if f"scene-{scene}" in c.files:
+            lines += ["", f"![{scene}](scene-{scene}.png)"]
+    lines += ["", "## Machine", "", "| | |", "|---|---|"]
+    lines += [f"| {k} | {v} |" for k, v in machine_description().items()]
+    return "\n".join(lines) + "\n"
+
+
+def _crop_window(reference: np.ndarray) -> tuple[slice, slice]:
+    """A window a quarter of the image wide around the pixel with the largest local contrast."""
+    h, w = reference.shape[:2]
+    size = max(4, min(h, w) // 4)
+    lum = reference.mean(axis=2)
+    contrast = np.abs(np.gradient(lum)[0]) + np.abs(np.gradient(lum)[1])
+    y, x = np.unravel_index(np.argmax(contrast), contrast.shape)
+    y0, x0 = min(max(0, y - size // 2), h - size), min(max(0, x - size // 2), w - size)
+    return slice(y0, y0 + size), slice(x0, x0 + size)
+
+
+def plot_scene(comparison: RenderComparison, scene: str, path: Path) -> Path | None:
+    """Reference and first-realisation images, zoomed crops, and relative MSE against time."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.patches
+    import matplotlib.pyplot as plt
+
+    from ._images import tonemap
+
+    reference = comparison.references[scene]
+    firsts = {r.method: r for r in comparison.runs if r.scene == scene and r.realisation == 0}
+    if not firsts:
+        return None
+    panels = [("reference", reference)] + [(m, firsts[m].image) for m in comparison.methods if m in firsts]
+    ys, xs = _crop_window(reference)
+    fig = plt.figure(figsize=(2.2 * len(panels), 7.2), layout="constrained")
+    grid = fig.add_gridspec(3, len(panels), height_ratios=(1, 1, 1.3))
+    for i, (name, image) in enumerate(panels):
+        ax = fig.add_subplot(grid[0, i])
+        ax.imshow(tonemap(image), interpolation="nearest")
+        ax.add_patch(matplotlib.patches.Rectangle((xs.start - 0.5, ys.start - 0.5), xs.stop - xs.start, ys.stop - ys.start, fill=False, color="yellow"))
+        title = name if name == "reference" else f"{name}\nrelMSE {firsts[name].metrics['relative_mse']:.3g}"
+        ax.set_title(title, fontsize=8)
+        ax.axis("off")
+        crop = fig.add_subplot(grid[1, i])
+        crop.imshow(tonemap(image[ys, xs]), interpolation="nearest")
+        crop.axis("off")
+    ax = fig.add_subplot(grid[2, :])
+    for method in comparison.methods:
+        for r in (r for r in comparison.runs if r.scene == scene and r.method == method):
+            t, e = zip(*r.curve) if r.curve else ((), ())
+            ax.plot(t, e, marker=".", alpha=0.8, color=f"C{comparison.methods.index(method)}", label=method if r.realisation == 0 else None)
+    ax.set(xscale="log", yscale="log", xlabel="wall time (s, compilation excluded)", ylabel="relative MSE", title=f"{scene}: error against time")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def write_comparison(comparison: RenderComparison, out: Path) -> dict[str, Path]:
+    """Write `results.csv`, one figure per scene and `results.md` into `out`."""
+    out.mkdir(parents=True, exist_ok=True)
+    files = {"csv": out / "results.csv"}
+    with open(files["csv"], "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(CSV_COLUMNS)
+        for r in comparison.runs:
+            writer.writerow([r.scene, r.method, r.realisation, f"{r.seconds:.3f}", r.evaluations] + [f"{r.metrics[k]:.6g}" for k in CSV_COLUMNS[5:]])
+    for scene in comparison.scenes:
+        path = plot_scene(comparison, scene, out / f"scene-{scene}.png")
+        if path is not None:
+            files[f"scene-{scene}"] = path
+    comparison.files = files
+    files["markdown"] = out / "results.md"
+    files["markdown"].write_text(markdown(comparison))
+    return files

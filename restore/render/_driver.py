@@ -1,0 +1,225 @@
+"""`render`: run a renderer in jitted chunks to a time or evaluation budget, with progress."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._pss import check_target
+from ._renderer import AbstractRenderer, check_count, check_lanes, host_params, host_tally, zero_tally
+
+#: Default work per jitted chunk when `chunk` is not given (target evaluations).
+_CHUNK_EVALUATIONS = 2**20
+#: int32 event counts in a device tally must not overflow within one chunk.
+_MAX_CHUNK_EVALUATIONS = 2**30
+
+
+@dataclasses.dataclass(frozen=True)
+class RenderResult:
+    """What `render` returns.
+
+    Attributes:
+        image: the estimate, `(H, W, 3)` float32.
+        evaluations: target evaluations spent (initialisation included).
+        seconds: wall time of the run (initialisation, steps and `on_update` calls),
+            compilation excluded.
+        compile_seconds: time spent compiling the jitted initialisation and chunk.
+        steps: renderer steps taken per lane.
+        lanes: number of lanes.
+        statistics: renderer diagnostics (acceptance rate, tours, `c`, `Z_hat`, ...).
+    """
+
+    image: np.ndarray
+    evaluations: int
+    seconds: float
+    compile_seconds: float
+    steps: int
+    lanes: int
+    statistics: dict[str, float]
+
+    @property
+    def evaluations_per_second(self) -> float:
+        return self.evaluations / self.seconds if self.seconds > 0 else math.nan
+
+
+def _check_budget(seconds, evaluations):
+    if seconds is None and evaluations is None:
+        raise ValueError("give a budget: seconds=..., evaluations=..., or both (the run stops at the first spent)")
+    if seconds is not None:
+        if isinstance(seconds, bool) or not isinstance(seconds, (int, float, np.integer, np.floating)):
+            raise ValueError(f"seconds must be a number, got {seconds!r}")
+        seconds = float(seconds)
+        if not (math.isfinite(seconds) and seconds > 0):
+            raise ValueError(f"seconds must be positive and finite, got {seconds!r}")
+    if evaluations is not None:
+        evaluations = check_count(evaluations, "evaluations")
+    return seconds, evaluations
+
+
+def _as_floats(stats: dict[str, Any]) -> dict[str, float]:
+    return {k: float(np.asarray(v)) for k, v in stats.items()}
+
+
+class _Progress:
+    """A rich progress bar over the budget (evaluations, or seconds when only time is given)."""
+
+    def __init__(self, enabled: bool, description: str, total: float, unit: str):
+        self.bar = None
+        if enabled:
+            from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+            self.bar = Progress(
+                TextColumn("{task.description}"),
+                BarColumn(),
+                TextColumn("{task.completed:.3g}/{task.total:.3g} " + unit),
+                TextColumn("{task.fields[rate]}"),
+                TimeElapsedColumn(),
+                TimeRemainingColumn(),
+            )
+            self.task = self.bar.add_task(description, total=total, rate="")
+
+    def __enter__(self):
+        if self.bar is not None:
+            self.bar.__enter__()
+        return self
+
+    def __exit__(self, *exc):
+        if self.bar is not None:
+            self.bar.__exit__(*exc)
+
+    def update(self, completed: float, rate: str) -> None:
+        if self.bar is not None:
+            self.bar.update(self.task, completed=completed, rate=rate)
+
+
+def render(
+    target,
+    renderer: AbstractRenderer,
+    *,
+    key,
+    seconds: float | None = None,
+    evaluations: int | None = None,
+    lanes: int = 4096,
+    chunk: int | None = None,
+    progress: bool = True,
+    on_update: Callable[[np.ndarray, dict[str, float]], None] | None = None,
+) -> RenderResult:
+    """Render `target` with `renderer` until the time or evaluation budget is spent.
+
+    The renderer's `init` and a chunk of `chunk` steps (a `fori_loop`) are compiled once,
+    ahead of the run (reported as `compile_seconds`, not counted in `seconds`). Between
+    chunks the device tally is added to float64 host totals and zeroed, the progress bar
+    advances, and `on_update(image_so_far, statistics)` is called (progressive output).
+
+    Budgets: `evaluations` counts every target evaluation, initialisation (bootstrap)
+    included; the run takes the largest whole number of steps that fits, so it stops on
+    the budget exactly when `evaluations - init_cost` is a multiple of the step cost
+    (`lanes` for all but `ERPT`, whose step is a round). `seconds` is checked between
+    chunks; near the end the chunk is shortened from the measured time per step, so the
+    run overshoots by at most about one step. With both, the first spent stops the run.
+
+    Arguments:
+        target: a PSS target (`restore.render.PSSTarget`).
+        renderer: e.g. `MetropolisRestore()`, `PSSMLT()`, `ERPT()`, `UniformSampler()`.
+        key: a JAX PRNG key.
+        seconds: wall-time budget (positive).
+        evaluations: evaluation budget (positive integer).
+        lanes: parallel lanes (chains, tours or samples per step).
+        chunk: steps per jitted call; default about 2^20 evaluations' worth.
+        progress: show a rich progress bar.
+        on_update: called as `on_update(image, statistics)` after every chunk.
+
+    Returns:
+        A `RenderResult`.
+
+    Raises:
+        ValueError: on bad budgets, lanes or chunk, a budget smaller than the
+            initialisation plus one step, or a target the renderer cannot start on.
+    """
+    if not isinstance(renderer, AbstractRenderer):
+        raise TypeError(f"renderer must be a restore.render renderer, got {type(renderer).__name__}")
+    check_target(target, needs_gradient=renderer.uses_gradient)
+    seconds, evaluations = _check_budget(seconds, evaluations)
+    lanes = check_lanes(lanes)
+    if on_update is not None and not callable(on_update):
+        raise TypeError("on_update must be callable as on_update(image, statistics)")
+    init_cost, step_cost = renderer.init_cost(lanes), renderer.step_cost(lanes)
+    if chunk is None:
+        chunk = max(1, _CHUNK_EVALUATIONS // step_cost)
+    chunk = check_count(chunk, "chunk")
+    if chunk * step_cost > _MAX_CHUNK_EVALUATIONS:
+        raise ValueError(
+            f"chunk x step cost = {chunk * step_cost} evaluations would overflow the int32 tallies; use a smaller chunk"
+        )
+    max_steps = None
+    if evaluations is not None:
+        max_steps = (evaluations - init_cost) // step_cost
+        if max_steps < 1:
+            raise ValueError(
+                f"an evaluation budget of {evaluations} does not cover initialisation ({init_cost}) plus one step "
+                f"({step_cost} evaluations with {lanes} lanes)"
+            )
+
+    key_init, key_run = jax.random.split(key)
+    t0 = time.perf_counter()
+    init_fn = jax.jit(lambda k: renderer.init(target, k, lanes)).lower(key_init).compile()
+    state_shape = jax.eval_shape(lambda k: renderer.init(target, k, lanes), key_init)
+    n_spec = jax.ShapeDtypeStruct((), jnp.int32)
+    chunk_fn = jax.jit(lambda k, s, n: renderer.run(target, k, s, n)).lower(key_run, state_shape, n_spec).compile()
+    # One throwaway step, so that a target's own first-call work (e.g. Dr.Jit recording its
+    # kernels for these batch sizes) is paid here, outside the budget, as with any compilation.
+    warm_key = jax.random.fold_in(key_init, 1)
+    jax.block_until_ready(chunk_fn(warm_key, init_fn(warm_key), jnp.asarray(1, jnp.int32)))
+    compile_seconds = time.perf_counter() - t0
+
+    name = type(renderer).__name__
+    total, unit = (float(evaluations), "evals") if evaluations is not None else (seconds, "s")
+    start = time.perf_counter()
+    state = jax.block_until_ready(init_fn(key_init))
+    params = host_params(state.params)
+    renderer.check(params)
+    setup = time.perf_counter() - start
+    totals, steps, chunks = None, 0, 0
+    with _Progress(progress, f"render {name}", total, unit) as bar:
+        while max_steps is None or steps < max_steps:
+            elapsed = time.perf_counter() - start
+            n = chunk if max_steps is None else min(chunk, max_steps - steps)
+            if seconds is not None:
+                if steps == 0:
+                    n = 1  # measure the time per step before committing to a chunk
+                else:
+                    if elapsed >= seconds:
+                        break
+                    per_step = max((elapsed - setup) / steps, 1e-9)
+                    # Chunks of at most a twentieth of the budget (and 2 s): progressive updates
+                    # and a stop close to the budget.
+                    slice_ = min(2.0, max(seconds / 20, 0.05))
+                    n = min(n, max(1, math.ceil(min(seconds - elapsed, slice_) / per_step)))
+            state = chunk_fn(jax.random.fold_in(key_run, chunks), state, jnp.asarray(n, jnp.int32))
+            totals = host_tally(state.tally, totals)  # blocks until the chunk is done
+            state = zero_tally(state)
+            steps, chunks = steps + n, chunks + 1
+            spent = init_cost + steps * step_cost
+            elapsed = time.perf_counter() - start
+            bar.update(spent if evaluations is not None else min(elapsed, seconds), f"{spent / elapsed:.3g} evals/s")
+            if on_update is not None:
+                image = np.asarray(renderer.image(target, state, totals), np.float32)
+                on_update(image, _as_floats(renderer.statistics(params, totals)))
+    wall = time.perf_counter() - start
+    image = np.asarray(renderer.image(target, state, totals), np.float32)
+    return RenderResult(
+        image=image,
+        evaluations=init_cost + steps * step_cost,
+        seconds=wall,
+        compile_seconds=compile_seconds,
+        steps=steps,
+        lanes=lanes,
+        statistics=_as_floats(renderer.statistics(params, totals)),
+    )

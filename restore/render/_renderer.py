@@ -1,0 +1,147 @@
+"""The renderer interface: functional `init` / `step` over NamedTuple states, plus tallies.
+
+A renderer state is a NamedTuple with (at least) two fields the driver relies on:
+- `params`: constants fixed at `init` (e.g. the kill-rate constant, a bootstrap `Z`).
+- `tally`: a NamedTuple of additive sums (the film `(P, 3)` and event counts). Sums are
+  additive over steps, so the driver moves them to float64 host totals after every
+  chunk and zeroes them on the device: float32 films and int32 counts never have to
+  hold more than one chunk.
+The image is `scale(params, totals) * film`, a formula written with arithmetic operators
+only so it works on device arrays (inside `jit`) and on NumPy host totals alike.
+"""
+
+from __future__ import annotations
+
+import abc
+from typing import Any, ClassVar
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float, Int, PRNGKeyArray
+
+from ._film import film_image
+
+
+def xp_of(*arrays):
+    """`jax.numpy` if any argument is a JAX array, else NumPy."""
+    return jnp if any(isinstance(a, jax.Array) for a in arrays) else np
+
+
+def ratio(num, den):
+    """`num / den`, NaN where `den == 0` (no data yet), for JAX or NumPy arrays."""
+    xp = xp_of(num, den)
+    den = xp.asarray(den)
+    return xp.where(den != 0, num / xp.where(den != 0, den, 1), xp.nan)
+
+
+def check_lanes(lanes: Any) -> int:
+    if isinstance(lanes, bool) or not isinstance(lanes, (int, np.integer)) or lanes < 1:
+        raise ValueError(f"lanes must be a positive integer, got {lanes!r}")
+    return int(lanes)
+
+
+def check_count(value: Any, name: str, minimum: int = 1) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    return int(value)
+
+
+def zero_tally(state):
+    """The state with its tally zeroed (after the driver has drained it)."""
+    return state._replace(tally=jax.tree.map(jnp.zeros_like, state.tally))
+
+
+def host_tally(tally, total=None):
+    """Add a device tally to float64 / int64 host totals (or start them)."""
+    as_host = lambda x: np.asarray(x, np.float64 if jnp.issubdtype(x.dtype, jnp.floating) else np.int64)  # noqa: E731
+    tally = jax.tree.map(as_host, tally)
+    return tally if total is None else jax.tree.map(np.add, total, tally)
+
+
+def host_params(params):
+    """Renderer constants as float64 NumPy scalars (for exact host-side formulas)."""
+    return jax.tree.map(lambda x: np.asarray(x, np.float64), params)
+
+
+def bootstrap_points(target, key: PRNGKeyArray, num: int, batch: int, with_grad: bool = False):
+    """`num` uniform points (rounded up to whole batches) evaluated in batches of at most
+    `batch` lanes (one batch call at a time), as one `PSSPoint`."""
+    from ._mutations import uniform_draw
+    from ._pss import evaluate
+
+    size = min(num, batch)
+    chunks = -(-num // size)
+    u = uniform_draw(key, chunks * size, target.dim).reshape(chunks, size, target.dim)
+    point = jax.lax.map(lambda v: evaluate(target, v, with_grad), u)
+    return jax.tree.map(lambda x: x.reshape((chunks * size,) + x.shape[2:]), point)
+
+
+def resample(key: PRNGKeyArray, weights: Float[Array, " B"], n: int) -> Int[Array, " n"]:
+    """`n` i.i.d. indices drawn with probability proportional to `weights` (inverse CDF:
+    `O(B + n log B)`, where `jax.random.categorical` would draw `n x B` Gumbel variables)."""
+    cumulative = jnp.cumsum(weights)
+    u = jax.random.uniform(key, (n,), cumulative.dtype) * cumulative[-1]
+    return jnp.clip(jnp.searchsorted(cumulative, u, side="right"), 0, weights.shape[0] - 1)
+
+
+def bootstrap_size(num: int, lanes: int) -> int:
+    """The number of evaluations `bootstrap_points` makes."""
+    size = min(num, lanes)
+    return -(-num // size) * size
+
+
+class AbstractRenderer(eqx.Module):
+    """A PSS renderer: `init(target, key, lanes)`, `step(target, key, state)`, `image`.
+
+    Structural choices (mutation, tour length, chain length) are fields of the module;
+    the target is passed to every call so that renderers stay small pytrees and one
+    renderer serves many targets. `step` evaluates the target a fixed number of times,
+    `step_cost(lanes)`, so budgets in evaluations are exact.
+    """
+
+    uses_gradient: ClassVar[bool] = False
+
+    @abc.abstractmethod
+    def init(self, target, key: PRNGKeyArray, lanes: int):
+        """A fresh state with `lanes` parallel lanes (costs `init_cost(lanes)` evaluations)."""
+
+    @abc.abstractmethod
+    def step(self, target, key: PRNGKeyArray, state):
+        """One step of every lane (costs `step_cost(lanes)` evaluations)."""
+
+    @abc.abstractmethod
+    def init_cost(self, lanes: int) -> int:
+        """Target evaluations made by `init`."""
+
+    @abc.abstractmethod
+    def step_cost(self, lanes: int) -> int:
+        """Target evaluations made by one `step`."""
+
+    @abc.abstractmethod
+    def scale(self, target, params, tally):
+        """The factor turning the film sum into the image estimate (see each renderer)."""
+
+    @abc.abstractmethod
+    def statistics(self, params, tally) -> dict[str, Any]:
+        """Renderer diagnostics (acceptance rate, tours, ...), from params and tally sums."""
+
+    def check(self, params) -> None:
+        """Raise `ValueError` if `init` found the target unusable (host-side, concrete params)."""
+
+    def run(self, target, key: PRNGKeyArray, state, num_steps: Int[Array, ""] | int):
+        """`num_steps` steps in a `fori_loop` (the count may be traced: no recompilation)."""
+
+        def body(i, s):
+            return self.step(target, jax.random.fold_in(key, i), s)
+
+        return jax.lax.fori_loop(0, num_steps, body, state)
+
+    def image(self, target, state, tally=None) -> Float[Array, "H W 3"]:
+        """The image estimate `(H, W, 3)` from `state`, or from host `tally` totals (float64)."""
+        if tally is None:
+            params, tally = state.params, state.tally
+        else:
+            params = host_params(state.params)
+        return film_image(tally.film, target.resolution, self.scale(target, params, tally))

@@ -1,0 +1,74 @@
+"""Plain path tracing in primary sample space: the sanity baseline."""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import jax.numpy as jnp
+from jaxtyping import Array, Float, Int, PRNGKeyArray
+
+from ._film import empty_film, splat
+from ._mutations import uniform_draw
+from ._pss import PSSPoint, check_target, evaluate
+from ._renderer import AbstractRenderer, check_lanes, ratio
+
+
+class UniformParams(NamedTuple):
+    lanes: Float[Array, ""]
+
+
+class UniformTally(NamedTuple):
+    """Sums: film of `rgb` (weight `lum` times `rgb / lum`), samples drawn, zero-luminance samples."""
+
+    film: Float[Array, "P 3"]
+    samples: Int[Array, ""]
+    black: Int[Array, ""]
+
+
+class UniformState(NamedTuple):
+    """The last batch drawn (zeros before the first step), constants and sums."""
+
+    point: PSSPoint
+    params: UniformParams
+    tally: UniformTally
+
+
+class UniformSampler(AbstractRenderer):
+    """Independent uniform points `u`, each splatting `rgb(u)` (density 1 on the torus).
+
+    Estimator: `I_j = W H F_j / N` with `F_j = sum rgb(u) 1{pixel(u) = j}` over `N` draws:
+    `E[rgb(u) 1{pixel = j}] = ∫ rgb 1{pixel = j} du = I_j / (W H)`. Unbiased.
+    """
+
+    def init_cost(self, lanes: int) -> int:
+        return 0
+
+    def step_cost(self, lanes: int) -> int:
+        return lanes
+
+    def init(self, target, key: PRNGKeyArray, lanes: int) -> UniformState:
+        check_target(target)
+        lanes = check_lanes(lanes)
+        zeros = jnp.zeros((lanes,), jnp.float32)
+        point = PSSPoint(jnp.zeros((lanes, target.dim), jnp.float32), zeros, jnp.zeros((lanes, 3), jnp.float32), None)
+        i0 = jnp.zeros((), jnp.int32)
+        tally = UniformTally(empty_film(target.num_pixels), i0, i0)
+        return UniformState(point, UniformParams(jnp.asarray(lanes, jnp.float32)), tally)
+
+    def step(self, target, key: PRNGKeyArray, state: UniformState) -> UniformState:
+        n = state.point.lum.shape[0]
+        point = evaluate(target, uniform_draw(key, n, target.dim))
+        tally = state.tally
+        tally = UniformTally(
+            film=splat(tally.film, target.pixel_index(point.u), point.lum, point.rgb, point.lum),
+            samples=tally.samples + jnp.int32(n),
+            black=tally.black + jnp.sum(point.lum == 0, dtype=jnp.int32),
+        )
+        return UniformState(point, state.params, tally)
+
+    def scale(self, target, params: UniformParams, tally: UniformTally):
+        """`W H / N`."""
+        return ratio(target.num_pixels, tally.samples)
+
+    def statistics(self, params: UniformParams, tally: UniformTally) -> dict[str, Any]:
+        return {"samples": tally.samples, "black_fraction": ratio(tally.black, tally.samples)}

@@ -1,0 +1,317 @@
+"""PSS renderers against the exact image of `AnalyticImage`; metrics; input checks; the driver.
+
+Convergence checks: `R` independent realisations (fixed keys) of each renderer; per
+2x2-pixel block and channel, a t-test of the mean of the realisations against the exact
+block mean, Bonferroni-corrected over the blocks. A negative control (Restore with a
+constant kill rate) must fail the same check.
+"""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy import stats
+
+import restore.render as rr
+from restore.render._renderer import host_params
+from targets import AnalyticImage
+
+TARGET = AnalyticImage.default(dim=3, resolution=(8, 8), num_bumps=3)
+EXACT = TARGET.exact_image()
+R = 24  # independent realisations
+ALPHA = 1e-3  # family-wise level of the block test
+
+
+def realisations(renderer, lanes, steps, seed=0, target=TARGET, r=R):
+    """`r` independent renders of `steps // 4` and of `steps` steps (fixed keys; one
+    compilation: the step count is traced), and the statistics of the longer ones."""
+
+    @jax.jit
+    def one(key, n):
+        k_init, k_run = jax.random.split(key)
+        state = renderer.run(target, k_run, renderer.init(target, k_init, lanes), n)
+        return renderer.image(target, state), renderer.statistics(state.params, state.tally)
+
+    keys = jax.random.split(jax.random.key(seed), r)
+    early = np.stack([np.asarray(one(k, steps // 4)[0], np.float64) for k in keys])
+    late, statistics = zip(*(one(k, steps) for k in keys))
+    statistics = {name: np.array([float(s[name]) for s in statistics]) for name in statistics[0]}
+    return early, np.stack([np.asarray(im, np.float64) for im in late]), statistics
+
+
+def blocks(images):
+    """Sum 2x2 pixel blocks: `(..., 8, 8, 3) -> (..., 4, 4, 3)`."""
+    shape = images.shape[:-3] + (4, 2, 4, 2, 3)
+    return images.reshape(shape).sum(axis=(-4, -2))
+
+
+def block_test(images, exact=EXACT):
+    """Bonferroni-corrected p-value and the largest |t| of the block means against the truth."""
+    b, truth = blocks(images), blocks(exact)
+    t = (b.mean(0) - truth) / (b.std(0, ddof=1) / math.sqrt(len(b)))
+    p = 2 * stats.t.sf(np.abs(t), df=len(b) - 1)
+    return min(1.0, p.min() * p.size), float(np.abs(t).max())
+
+
+def relative_error(images, exact=EXACT):
+    return float(np.mean(np.sqrt(np.sum((images - exact) ** 2, axis=(1, 2, 3)) / np.sum(exact**2))))
+
+
+RENDERERS = {  # (renderer, lanes, steps): a few million evaluations over the R realisations
+    "metropolis_restore": (lambda: rr.MetropolisRestore(tour_length=16, n_bootstrap=16384), 128, 640),
+    "mala_restore": (lambda: rr.MALARestore(2e-4, tour_length=16, n_bootstrap=16384), 128, 320),
+    "pssmlt": (lambda: rr.PSSMLT(n_bootstrap=16384), 128, 640),
+    "erpt": (lambda: rr.ERPT(chain_length=16), 128, 32),
+    "uniform": (lambda: rr.UniformSampler(), 256, 320),
+}
+
+
+@pytest.fixture(scope="module")
+def runs():
+    return {}
+
+
+def _run(runs, name):
+    if name not in runs:
+        make, lanes, steps = RENDERERS[name]
+        runs[name] = realisations(make(), lanes, steps)
+    return runs[name]
+
+
+# ---------------------------------------------------------------------- the analytic image
+def test_analytic_image_is_consistent():
+    lum_weights = np.array([0.2126, 0.7152, 0.0722])
+    # the image averages to the integral of rgb, whose luminance is Z
+    assert np.isclose(EXACT.mean(axis=(0, 1)) @ lum_weights, TARGET.Z, rtol=1e-6)  # colours are float32
+    u = jax.random.uniform(jax.random.key(0), (4096, 3), jnp.float32)
+    lum, rgb, grad = jax.jit(lambda v: TARGET.jax_evaluate_with_grad(v))(u)
+    assert lum.dtype == jnp.float32 and rgb.shape == (4096, 3) and grad.shape == (4096, 3)
+    np.testing.assert_allclose(np.asarray(rgb) @ lum_weights, np.asarray(lum), rtol=1e-5)
+    # gradient of log luminance against central differences (float64 evaluation by hand)
+    x, e = np.asarray(u[:8], np.float64), 1e-3 * np.eye(3)
+    log_lum = jax.jit(jax.vmap(lambda v: jnp.log(TARGET.jax_evaluate(v)[0])))
+    fd = (log_lum(x[None] + e[:, None]) - log_lum(x[None] - e[:, None])) / 2e-3  # (D, 8)
+    np.testing.assert_allclose(np.asarray(grad[:8]), np.asarray(fd).T, rtol=2e-2, atol=2e-2)
+    draws = np.asarray(jax.jit(lambda k: TARGET.sample(k, 100_000))(jax.random.key(1)))
+    assert draws.dtype == np.float32 and draws.min() >= 0 and draws.max() < 1
+    counts = np.bincount(np.asarray(TARGET.pixel_index(draws)), minlength=64)
+    expected = 100_000 * (EXACT @ lum_weights).ravel() / (64 * TARGET.Z)  # luminance per pixel / Z
+    assert stats.chi2.sf(np.sum((counts - expected) ** 2 / expected), df=63) > ALPHA
+    corners = jnp.array([[0.0, 0.0, 0.5], [0.99, 0.0, 0.5], [0.0, 0.99, 0.5], [0.13, 0.26, 0.0]])
+    pix = np.asarray(TARGET.pixel_index(corners))
+    np.testing.assert_array_equal(pix, [0, 7, 56, 1 + 8 * 2])
+
+
+def test_analytic_image_rejects_bad_arguments():
+    with pytest.raises(ValueError, match="widths"):
+        AnalyticImage([[0.2, 0.3]], 0.3)
+    with pytest.raises(ValueError, match="means"):
+        AnalyticImage([0.2, 0.3], 0.1)
+    with pytest.raises(ValueError, match="weights"):
+        AnalyticImage([[0.2, 0.3]], 0.1, weights=[-1.0])
+    with pytest.raises(ValueError, match="floor"):
+        AnalyticImage([[0.2, 0.3]], 0.1, floor=-0.1)
+    with pytest.raises(ValueError, match="resolution"):
+        AnalyticImage([[0.2, 0.3]], 0.1, resolution=(0, 4))
+    with pytest.raises(ValueError, match="separated"):
+        AnalyticImage.default(num_bumps=8)
+
+
+# ---------------------------------------------------------------------- convergence
+@pytest.mark.parametrize("name", list(RENDERERS))
+def test_renderer_converges_to_the_exact_image(runs, name):
+    early, late, st = _run(runs, name)
+    if name == "erpt":  # whole rounds: 128 seeds and chains each, 32 rounds
+        assert np.all(st["seeds"] == 128 * 32) and np.all(st["chains"] == 128 * 32)
+    p_value, t_max = block_test(late)
+    assert p_value > ALPHA, f"{name}: Bonferroni p = {p_value:.2g}, max |t| = {t_max:.2f}"
+    e_early, e_late = relative_error(early), relative_error(late)
+    assert e_late < 0.7 * e_early, f"{name}: relative error {e_early:.4f} -> {e_late:.4f} with 4x the steps"
+
+
+def test_restore_tour_length_and_normalising_constant_agree_with_theory(runs):
+    _, _, st = _run(runs, "metropolis_restore")
+    # mean tour duration (local moves per tour) is Z / c, so c times it estimates Z
+    z = st["z_estimate"]
+    t = (z.mean() - TARGET.Z) / (z.std(ddof=1) / math.sqrt(R))
+    assert abs(t) < 4.0, f"Z estimate {z.mean():.4f} vs {TARGET.Z:.4f} (t = {t:.2f})"
+    ratio = st["mean_tour_length"] * st["rate"] / TARGET.Z  # measured / theoretical Z / c
+    assert abs(ratio.mean() - 1) < 0.03
+    # c = Z_hat / L: tours last L moves up to the bootstrap error of Z_hat
+    np.testing.assert_allclose(st["rate"], st["z_bootstrap"] / 16.0, rtol=1e-5)
+    assert np.all(st["tours_per_lane"] > 30) and np.all(st["acceptance_rate"] > 0.5)
+
+
+class ConstantRateRestore(rr.MetropolisRestore):
+    """Negative control: the kill rate `c / lum` replaced by the constant `c / Z_hat`."""
+
+    def log_kill_rate(self, params, lum):
+        constant = params.log_rate - jnp.log(params.z_bootstrap)
+        return jnp.where(lum > 0, constant, jnp.inf)
+
+
+def test_negative_control_constant_kill_rate_is_rejected():
+    _, late, _ = realisations(ConstantRateRestore(tour_length=16, n_bootstrap=16384), 128, 320, r=12)
+    p_value, t_max = block_test(late)
+    assert p_value < 1e-6, f"the wrong kill rate passed: p = {p_value:.2g}, max |t| = {t_max:.1f}"
+
+
+def test_uniform_start_restore_shows_its_finite_run_bias():
+    """Starting every lane at a tour start (uniform draw) leaves a transient bias of order
+    (bright-region sojourn) / (steps per lane): long tours in bright bumps are still
+    running when the budget ends. The default start (the jump chain's stationary law,
+    resampled from the bootstrap) removes it; the block test must see the difference."""
+    renderer = rr.MetropolisRestore(tour_length=16, n_bootstrap=16384, start="uniform")
+    _, late, st = realisations(renderer, 128, 640, r=12)
+    p_value, t_max = block_test(late)
+    assert p_value < 1e-6 and late.mean(0).sum() < 0.9 * EXACT.sum(), (p_value, t_max)
+
+
+class UncorrectedMALA(rr.MALAKernel):
+    """Negative control: MALA without its Hastings term."""
+
+    def log_correction(self, current, candidate):
+        return jnp.zeros_like(current.lum)
+
+
+@pytest.mark.parametrize("kernel, passes", [(rr.MALAKernel(0.01), True), (UncorrectedMALA(0.01), False)])
+def test_wrapped_mala_kernel_leaves_the_luminance_invariant(kernel, passes):
+    """From exact draws, 30 MALA steps with a step (sqrt(2h) = 0.14) large enough to wrap
+    around the torus must keep the pixel histogram on the exact luminance-per-pixel law."""
+    from restore.render._local import metropolis_test
+    from restore.render._pss import evaluate, select
+
+    n = 8192
+
+    @jax.jit
+    def final_pixels(key):
+        def step(i, x):
+            k_move, k_accept = jax.random.split(jax.random.fold_in(key, i))
+            y = evaluate(TARGET, kernel.propose(k_move, x), with_grad=True)
+            coin = jax.random.uniform(k_accept, (n,), jnp.float32)
+            accept, _ = metropolis_test(coin, x, y, kernel.log_correction(x, y))
+            return select(accept, y, x)
+
+        start = evaluate(TARGET, TARGET.sample(jax.random.fold_in(key, 10**6), n), with_grad=True)
+        return TARGET.pixel_index(jax.lax.fori_loop(0, 30, step, start).u)
+
+    counts = np.bincount(np.asarray(final_pixels(jax.random.key(0))), minlength=64)
+    expected = n * (EXACT @ [0.2126, 0.7152, 0.0722]).ravel() / (64 * TARGET.Z)
+    p_value = stats.chi2.sf(np.sum((counts - expected) ** 2 / expected), df=63)
+    assert (p_value > ALPHA) if passes else (p_value < 1e-10), p_value
+
+
+# ---------------------------------------------------------------------- metrics
+def test_metrics_on_hand_computed_arrays():
+    reference = np.array([[1.0, 2.0], [0.0, 4.0]])
+    image = np.array([[2.0, 2.0], [1.0, 2.0]])
+    assert rr.l1(image, reference) == pytest.approx((1 + 0 + 1 + 2) / 4)
+    assert rr.mse(image, reference) == pytest.approx((1 + 0 + 1 + 4) / 4)
+    expected = (1 / (1 + 0.01) + 0 + 1 / 0.01 + 4 / (16 + 0.01)) / 4
+    assert rr.relative_mse(image, reference) == pytest.approx(expected)
+    assert rr.relative_mse(image, reference, eps=1.0) == pytest.approx((1 / 2 + 0 + 1 + 4 / 17) / 4)
+    # strict relative metrics leave the zero reference pixel out
+    assert rr.mrse(image, reference) == pytest.approx((1 + 0 + 0.25) / 3)
+    assert rr.mape(image, reference) == pytest.approx(100 * (1 + 0 + 0.5) / 3)
+    stack = np.stack([image, reference, 2 * image])
+    assert rr.variance_across(stack) == pytest.approx(np.mean(np.var(stack, axis=0, ddof=1)))
+    assert rr.variance_across([[1.0, 3.0], [3.0, 5.0]]) == pytest.approx(2.0)
+    with pytest.raises(ValueError, match="zero"):
+        rr.mrse(image, np.zeros_like(reference))
+    with pytest.raises(ValueError, match="shapes"):
+        rr.mse(image, reference[0])
+    with pytest.raises(ValueError, match="two realisations"):
+        rr.variance_across(image[None])
+    with pytest.raises(ValueError, match="eps"):
+        rr.relative_mse(image, reference, eps=0.0)
+
+
+# ---------------------------------------------------------------------- inputs
+def test_bad_inputs_raise_clear_errors():
+    key = jax.random.key(0)
+    with pytest.raises(ValueError, match="tour_length"):
+        rr.MetropolisRestore(tour_length=0)
+    with pytest.raises(ValueError, match="tour_length"):
+        rr.MALARestore(tour_length=-3.0)
+    with pytest.raises(ValueError, match="rate"):
+        rr.MetropolisRestore(rate=0.0)
+    with pytest.raises(ValueError, match="start"):
+        rr.MetropolisRestore(start="somewhere")
+    with pytest.raises(ValueError, match="p_large"):
+        rr.PSSMLT(p_large=0.0)
+    with pytest.raises(ValueError, match="p_large"):
+        rr.PSSMLT(p_large=1.5)
+    with pytest.raises(ValueError, match="n_bootstrap"):
+        rr.PSSMLT(n_bootstrap=1)
+    with pytest.raises(ValueError, match="chain_length"):
+        rr.ERPT(chain_length=0)
+    with pytest.raises(ValueError, match="chains_per_seed"):
+        rr.ERPT(chains_per_seed=-1)
+    with pytest.raises(ValueError, match="s1 < s2"):
+        rr.KelemenMutation(s1=0.1, s2=0.01)
+    with pytest.raises(ValueError, match="sigma"):
+        rr.WrappedGaussianMutation(0.0)
+    with pytest.raises(ValueError, match="step_size"):
+        rr.MALARestore(step_size=1.0)
+    renderer = rr.UniformSampler()
+    with pytest.raises(ValueError, match="seconds"):
+        rr.render(TARGET, renderer, key=key, seconds=-1.0)
+    with pytest.raises(ValueError, match="budget"):
+        rr.render(TARGET, renderer, key=key)
+    with pytest.raises(ValueError, match="lanes"):
+        rr.render(TARGET, renderer, key=key, evaluations=100, lanes=0)
+    with pytest.raises(ValueError, match="evaluations"):
+        rr.render(TARGET, renderer, key=key, evaluations=0)
+    with pytest.raises(ValueError, match="chunk"):
+        rr.render(TARGET, renderer, key=key, evaluations=100, chunk=0)
+    with pytest.raises(ValueError, match="does not cover"):
+        rr.render(TARGET, rr.PSSMLT(n_bootstrap=4096), key=key, evaluations=4096, lanes=64)
+    with pytest.raises(TypeError, match="not a PSS target"):
+        rr.render(object(), renderer, key=key, evaluations=100)
+    with pytest.raises(TypeError, match="renderer"):
+        rr.render(TARGET, object(), key=key, evaluations=100)
+
+
+def test_black_target_is_reported_not_rendered_as_nan():
+    black = AnalyticImage([[0.5, 0.5, 0.5]], 0.01, floor=0.0)  # lum underflows to 0 far from the bump
+    tiny = rr.MetropolisRestore(n_bootstrap=2)
+    state = jax.jit(lambda k: tiny.init(black, k, 2))(jax.random.key(3))
+    with pytest.raises(ValueError, match="zero luminance"):
+        tiny.check(host_params(state.params))
+    # zero-luminance lanes are killed at once, splat nothing and never produce NaN
+    renderer = rr.MetropolisRestore(rate=1.0, start="uniform")
+    run = jax.jit(lambda k: renderer.run(black, k, renderer.init(black, k, 64), 20))
+    tally = run(jax.random.key(0)).tally
+    assert np.all(np.isfinite(np.asarray(tally.film))) and int(tally.kills) > 0.9 * 64 * 20
+
+
+# ---------------------------------------------------------------------- the driver
+def test_driver_stops_on_the_evaluation_budget_and_reports_progress():
+    updates = []
+    renderer = rr.MetropolisRestore(tour_length=8, n_bootstrap=1000)
+    lanes = 256
+    budget = renderer.init_cost(lanes) + 37 * lanes
+    result = rr.render(
+        TARGET, renderer, key=jax.random.key(0), evaluations=budget, lanes=lanes, chunk=10, progress=False,
+        on_update=lambda image, st: updates.append((image.shape, st["tours_completed"])),
+    )
+    assert result.evaluations == budget and result.steps == 37
+    assert len(updates) == 4 and all(shape == (8, 8, 3) for shape, _ in updates)
+    assert [t for _, t in updates] == sorted(t for _, t in updates)  # progressive: tours accumulate
+    assert result.image.shape == (8, 8, 3) and result.image.dtype == np.float32
+    assert np.all(np.isfinite(result.image)) and result.compile_seconds > 0 and result.seconds > 0
+    assert {"rate", "z_bootstrap", "acceptance_rate", "tours_completed"} <= set(result.statistics)
+    # a budget that is not a whole number of steps is never exceeded
+    odd = rr.render(TARGET, rr.UniformSampler(), key=jax.random.key(1), evaluations=1000, lanes=64, progress=False)
+    assert odd.evaluations == 960 and odd.steps == 15
+
+
+def test_driver_time_budget():
+    result = rr.render(TARGET, rr.UniformSampler(), key=jax.random.key(2), seconds=0.3, lanes=256, progress=True)
+    assert result.seconds >= 0.3 and result.seconds < 5 and result.steps > 0
+    assert result.evaluations == 256 * result.steps
+    # an ERPT step is a round: B seeds and M mutations of each of the `lanes` chains
+    assert rr.ERPT(chain_length=4).step_cost(64) == 64 + 4 * 64
+    assert rr.ERPT(chain_length=4, chains_per_seed=2).step_cost(64) == 32 + 4 * 64
