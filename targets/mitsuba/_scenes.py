@@ -13,9 +13,11 @@ from __future__ import annotations
 
 import copy
 import os
+import tempfile
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
+from xml.etree import ElementTree
 
 import numpy as np
 
@@ -420,38 +422,44 @@ def _load_xml(mi: Any, path: Path, resolution: Sequence[int] | None, max_depth: 
     path = path.expanduser()
     if not path.is_file():
         raise FileNotFoundError(f"Mitsuba scene file not found: {str(path)!r}")
-    config = mi.parser.ParserConfig(mi.variant())
     try:
-        state = mi.parser.parse_file(config, str(path))
-        mi.parser.transform_all(config, state)
-        _override_xml(mi, state, resolution, max_depth)
-        scene = mi.parser.instantiate(config, state)
+        tree = ElementTree.parse(path)
+    except ElementTree.ParseError as err:
+        raise ValueError(f"Mitsuba could not load the scene file {str(path)!r}: XML parsing failed: {err}") from err
+    _override_xml(tree.getroot(), resolution, max_depth)
+    # Written beside the original, so that relative paths (meshes, textures, includes) still resolve.
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}-", suffix=".xml", dir=path.parent)
+    os.close(fd)
+    try:
+        tree.write(tmp, encoding="utf-8", xml_declaration=True)
+        scene = mi.load_file(tmp)
     except Exception as err:
         raise ValueError(f"Mitsuba could not load the scene file {str(path)!r}: {err}") from err
+    finally:
+        Path(tmp).unlink(missing_ok=True)
     if not isinstance(scene, mi.Scene):
         raise ValueError(f"the file {str(path)!r} does not describe a Mitsuba scene")
     return scene
 
 
-def _override_xml(mi: Any, state: Any, resolution: Sequence[int] | None, max_depth: int | None) -> None:
-    """Box filters on every film, then the resolution and `path` depth overrides, on parsed XML."""
-    nodes = state.nodes
-    box = mi.ObjectType.ReconstructionFilter
-    for node in nodes:
-        if node.type == box:
-            node.props = mi.Properties("box")
-    for node in list(nodes):
-        props = node.props
-        if node.type == mi.ObjectType.Film:
-            refs = [props[k] for k in props.keys() if isinstance(props[k], mi.Properties.ResolvedReference)]
-            if not any(nodes[r.index()].type == box for r in refs):
-                filter_node = mi.parser.SceneNode()
-                filter_node.type = box
-                filter_node.props = mi.Properties("box")
-                nodes.append(filter_node)
-                props["rfilter"] = mi.Properties.ResolvedReference(len(nodes) - 1)
-            if resolution is not None:
-                props["width"], props["height"] = _resolution(resolution)
-        elif node.type == mi.ObjectType.Integrator and max_depth is not None and props.plugin_name() == "path":
-            props["max_depth"] = _max_depth(max_depth)
-        node.props = props
+def _set_child(parent: ElementTree.Element, tag: str, name: str, value: str) -> None:
+    for child in parent.findall(tag):
+        if child.get("name") == name:
+            parent.remove(child)
+    ElementTree.SubElement(parent, tag, name=name, value=value)
+
+
+def _override_xml(root: ElementTree.Element, resolution: Sequence[int] | None, max_depth: int | None) -> None:
+    """Box filters on every film, then the resolution and `path` depth overrides, on the XML tree."""
+    for film in root.iter("film"):
+        for rfilter in film.findall("rfilter"):
+            film.remove(rfilter)
+        ElementTree.SubElement(film, "rfilter", type="box")
+        if resolution is not None:
+            width, height = _resolution(resolution)
+            _set_child(film, "integer", "width", str(width))
+            _set_child(film, "integer", "height", str(height))
+    if max_depth is not None:
+        for integrator in root.iter("integrator"):
+            if integrator.get("type") == "path":
+                _set_child(integrator, "integer", "max_depth", str(_max_depth(max_depth)))

@@ -1,0 +1,81 @@
+"""`restore render` and `restore render-compare` on tiny Mitsuba scenes, and their error messages."""
+
+import importlib.util
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from restore.cli import app
+
+if not all(importlib.util.find_spec(name) is not None for name in ("mitsuba", "drjit")):
+    pytest.skip("the `mitsuba` extra is not installed", allow_module_level=True)
+
+POINT_LIGHT_XML = """<scene version="3.0.0">
+  <integrator type="path"><integer name="max_depth" value="3"/></integrator>
+  <sensor type="perspective">
+    <transform name="to_world"><lookat origin="0, 0, 4" target="0, 0, 0" up="0, 1, 0"/></transform>
+    <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/></film>
+  </sensor>
+  <emitter type="point"><point name="position" x="0" y="2" z="2"/><rgb name="intensity" value="10"/></emitter>
+  <shape type="rectangle"><bsdf type="diffuse"/></shape>
+</scene>
+"""
+
+
+def _invoke(*args):
+    return CliRunner().invoke(app, list(map(str, args)))
+
+
+def test_render_writes_the_image_and_a_preview(tmp_path):
+    from restore.render._images import load_image
+
+    out = tmp_path / "cornell.exr"
+    result = _invoke("render", "cornell_box", "--method", "restore", "--evaluations", 200_000, "--resolution", 8,
+                     "--max-depth", 2, "--lanes", 512, "--no-progress", "--out", out)
+    assert result.exit_code == 0, result.output
+    assert "restore:" in result.output and "paths" in result.output
+    image = load_image(out)
+    assert image.shape == (8, 8, 3) and np.all(np.isfinite(image)) and image.sum() > 0
+    assert out.with_suffix(".png").stat().st_size > 100
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (("render", "no/such/scene.xml", "--time", 1), "not found"),
+        (("render", "cornell_box", "--method", "bogus", "--time", 1), "unknown method"),
+        (("render", "cornell_box"), "give a budget"),
+        (("render", "cornell_box", "--time", 1, "--out", "image.jpg"), "must end in .exr or .npy"),
+        (("render", "cornell_box", "--time", 1, "--resolution", "8x"), "--resolution"),
+    ],
+)
+def test_render_reports_bad_input_clearly(args, message):
+    result = _invoke(*args)
+    assert result.exit_code == 2 and message in result.output, result.output
+
+
+def test_render_rejects_a_malformed_scene_and_delta_lights_for_gradients(tmp_path):
+    broken = tmp_path / "broken.xml"
+    broken.write_text("<scene version='3.0.0'><shape type='sphere'>")
+    result = _invoke("render", broken, "--time", 1, "--out", tmp_path / "x.exr")
+    assert result.exit_code == 2 and "broken.xml" in result.output, result.output
+
+    point = tmp_path / "point.xml"
+    point.write_text(POINT_LIGHT_XML)
+    result = _invoke("render", point, "--method", "mala-restore", "--time", 1, "--out", tmp_path / "x.exr")
+    assert result.exit_code == 2 and "point" in result.output.lower(), result.output
+
+
+def test_render_compare_writes_the_table_figures_and_ratios(tmp_path, monkeypatch):
+    monkeypatch.setenv("RESTORE_CACHE_DIR", str(tmp_path / "cache"))
+    out = tmp_path / "results"
+    result = _invoke("render-compare", "--scenes", "cornell_box", "--methods", "path,pssmlt,restore", "--time", 0.3,
+                     "--realisations", 2, "--resolution", 8, "--max-depth", 2, "--lanes", 256, "--reference-spp", 64,
+                     "--no-progress", "--out", out)
+    assert result.exit_code == 0, result.output
+    text = (out / "results.md").read_text()
+    assert "Metropolis Restore / pssmlt" in text and "Metropolis Restore / path" in text and "PSS paths/s" in text
+    assert (out / "scene-cornell_box.png").stat().st_size > 10_000
+    rows = (out / "results.csv").read_text().splitlines()
+    assert len(rows) == 1 + 3 * 2
