@@ -107,6 +107,8 @@ def bench(
         met = {True: "[green]yes[/]", False: "[red]no[/]", None: ""}[r.met]
         table.add_row(r.name, r.problem, f"{r.value:.3g}", r.goal, met, end_section=summary_at is not None and i == summary_at - 1)
     console.print(table)
+    if result.interrupted:
+        console.print(f"[bold yellow]Interrupted by Ctrl-C:[/] the files hold the {len(result.rows)} runs that finished.")
     console.print(f"Suite took {result.seconds / 60:.1f} min. Files:")
     for path in result.files.values():
         console.print(f"  {path}")
@@ -200,6 +202,8 @@ def _render(scene, method, seconds, evaluations, resolution, max_depth, lanes, t
         evaluations=evaluations, lanes=lanes, progress=progress,
     )
     stats = ", ".join(f"{k} {v:.4g}" for k, v in result.statistics.items() if np.isfinite(v))
+    if result.interrupted:
+        stats += "; [bold yellow]interrupted by Ctrl-C: the image holds the finished part of the run[/]"
     return result.image, (
         f"{method}: {result.evaluations:,} paths in {result.seconds:.1f} s (+{result.compile_seconds:.1f} s compile), "
         f"{result.evaluations_per_second:,.0f} paths/s; {stats}"

@@ -100,3 +100,16 @@ def test_cli_bench_help():
     assert out.exit_code == 0, out.output
     for flag in ("--quick", "--out", "--seeds", "--no-progress"):
         assert flag in out.output
+
+
+def test_ctrl_c_keeps_and_writes_the_finished_runs(tmp_path):
+    def interrupt_after_two_runs(line, seen=[]):  # noqa: B006 - counts calls
+        seen.append(line)
+        if len(seen) == 2:
+            raise KeyboardInterrupt
+
+    config = SuiteConfig.tiny().replace(samplers=("restore",))
+    result = run_suite(config, tmp_path, progress=False, log=interrupt_after_two_runs)
+    assert result.interrupted and len(result.rows) == 2
+    assert "Interrupted" in (tmp_path / "results.md").read_text()
+    assert len((tmp_path / "results.csv").read_text().splitlines()) == 3

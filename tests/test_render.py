@@ -315,3 +315,18 @@ def test_driver_time_budget():
     # an ERPT step is a round: B seeds and M mutations of each of the `lanes` chains
     assert rr.ERPT(chain_length=4).step_cost(64) == 64 + 4 * 64
     assert rr.ERPT(chain_length=4, chains_per_seed=2).step_cost(64) == 32 + 4 * 64
+
+
+def test_ctrl_c_keeps_the_finished_chunks():
+    calls = []
+
+    def interrupt_on_second_update(image, stats):
+        calls.append(stats["tours_completed"])
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+
+    renderer = rr.MetropolisRestore(tour_length=8, n_bootstrap=1000)
+    result = rr.render(TARGET, renderer, key=jax.random.key(5), evaluations=10**9, lanes=256, chunk=10,
+                       progress=False, on_update=interrupt_on_second_update)
+    assert result.interrupted and result.steps == 20 and len(calls) == 2
+    assert np.all(np.isfinite(result.image)) and result.image.sum() > 0

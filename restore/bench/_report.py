@@ -111,6 +111,10 @@ def markdown(result) -> str:
         f"of jump Restore with a random walk), curve points at {', '.join(f'{f:g}' for f in cfg.fractions)} of it; "
         f"MMD on at most {cfg.max_points} draws. Suite wall time {result.seconds / 60:.1f} min.",
         "",
+    ]
+    if getattr(result, "interrupted", False):
+        lines += [f"**Interrupted**: partial results, {len(result.rows)} runs.", ""]
+    lines += [
         "## Recorded ratios",
         "",
         "| ratio | problem | value | goal | met | detail |",

@@ -34,6 +34,7 @@ class SuiteResult:
     machine: dict[str, str]
     seconds: float
     files: dict[str, Path] = field(default_factory=dict)
+    interrupted: bool = False
 
 
 def check_dependencies(config: SuiteConfig) -> None:
@@ -92,6 +93,9 @@ def run_suite(config: SuiteConfig, out_dir: str | Path | None = None, *, progres
     `log`, if given, is called with one line per finished run (e.g. `print`, for logs
     where no progress bar can be drawn).
 
+    Ctrl-C (KeyboardInterrupt) stops the suite; the runs finished so far are kept, written
+    out, and the result says `interrupted=True`.
+
     Order within a problem and seed: jump Restore at each budget point first, then every
     other sampler at the evaluations jump Restore used (its matched kernel's run, same
     budget point), then at jump Restore's wall time (compilation excluded) for the full
@@ -103,6 +107,19 @@ def run_suite(config: SuiteConfig, out_dir: str | Path | None = None, *, progres
     started, machine = time.perf_counter(), machine_description()
     rows: list[dict] = []
     raw_rates: dict[str, float] = {}
+    interrupted = False
+    try:
+        _run_all(config, rows, raw_rates, progress, log)
+    except KeyboardInterrupt:
+        interrupted = True  # keep and write what has been measured
+    result = SuiteResult(config, rows, raw_rates, recorded_ratios(rows, raw_rates), machine, time.perf_counter() - started, interrupted=interrupted)
+    if out_dir is not None and (rows or not interrupted):
+        result.files = write_results(result, Path(out_dir))
+    return result
+
+
+def _run_all(config: SuiteConfig, rows: list[dict], raw_rates: dict[str, float], progress: bool, log) -> None:
+    """Run every problem, seed, runner and budget of `config`, appending to `rows` and `raw_rates` as it goes."""
     with _progress(_num_runs(config), progress) as (describe, advance):
         for name in config.problems:
             problem = get_problem(name)
@@ -136,7 +153,3 @@ def run_suite(config: SuiteConfig, out_dir: str | Path | None = None, *, progres
                                 f"{out.run_time:.2f} s (+{out.compile_time:.1f} s compile), mode RMSE {metrics['mode_rmse']:.3g}, "
                                 f"mean error {metrics['mean_error']:.3g}, MMD {metrics['mmd']:.3g}"
                             )
-    result = SuiteResult(config, rows, raw_rates, recorded_ratios(rows, raw_rates), machine, time.perf_counter() - started)
-    if out_dir is not None:
-        result.files = write_results(result, Path(out_dir))
-    return result

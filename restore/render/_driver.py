@@ -34,6 +34,8 @@ class RenderResult:
         steps: renderer steps taken per lane.
         lanes: number of lanes.
         statistics: renderer diagnostics (acceptance rate, tours, `c`, `Z_hat`, ...).
+        interrupted: the run was stopped by Ctrl-C (KeyboardInterrupt); the image holds
+            every chunk finished before it.
     """
 
     image: np.ndarray
@@ -43,6 +45,7 @@ class RenderResult:
     steps: int
     lanes: int
     statistics: dict[str, float]
+    interrupted: bool = False
 
     @property
     def evaluations_per_second(self) -> float:
@@ -117,6 +120,8 @@ def render(
     ahead of the run (reported as `compile_seconds`, not counted in `seconds`). Between
     chunks the device tally is added to float64 host totals and zeroed, the progress bar
     advances, and `on_update(image_so_far, statistics)` is called (progressive output).
+    Ctrl-C (KeyboardInterrupt) stops the run and returns the image of the finished chunks,
+    with `interrupted=True`.
 
     Budgets: `evaluations` counts every target evaluation, initialisation (bootstrap)
     included; the run takes the largest whole number of steps that fits, so it stops on
@@ -186,32 +191,37 @@ def render(
     params = host_params(state.params)
     renderer.check(params)
     setup = time.perf_counter() - start
-    totals, steps, chunks = None, 0, 0
-    with _Progress(progress, f"render {name}", total, unit) as bar:
-        while max_steps is None or steps < max_steps:
-            elapsed = time.perf_counter() - start
-            n = chunk if max_steps is None else min(chunk, max_steps - steps)
-            if seconds is not None:
-                if steps == 0:
-                    n = 1  # measure the time per step before committing to a chunk
-                else:
-                    if elapsed >= seconds:
-                        break
-                    per_step = max((elapsed - setup) / steps, 1e-9)
-                    # Chunks of at most a twentieth of the budget (and 2 s): progressive updates
-                    # and a stop close to the budget.
-                    slice_ = min(2.0, max(seconds / 20, 0.05))
-                    n = min(n, max(1, math.ceil(min(seconds - elapsed, slice_) / per_step)))
-            state = chunk_fn(jax.random.fold_in(key_run, chunks), state, jnp.asarray(n, jnp.int32))
-            totals = host_tally(state.tally, totals)  # blocks until the chunk is done
-            state = zero_tally(state)
-            steps, chunks = steps + n, chunks + 1
-            spent = init_cost + steps * step_cost
-            elapsed = time.perf_counter() - start
-            bar.update(spent if evaluations is not None else min(elapsed, seconds), f"{spent / elapsed:.3g} evals/s")
-            if on_update is not None:
-                image = np.asarray(renderer.image(target, state, totals), np.float32)
-                on_update(image, _as_floats(renderer.statistics(params, totals)))
+    totals, steps, chunks, interrupted = None, 0, 0, False
+    try:
+        with _Progress(progress, f"render {name}", total, unit) as bar:
+            while max_steps is None or steps < max_steps:
+                elapsed = time.perf_counter() - start
+                n = chunk if max_steps is None else min(chunk, max_steps - steps)
+                if seconds is not None:
+                    if steps == 0:
+                        n = 1  # measure the time per step before committing to a chunk
+                    else:
+                        if elapsed >= seconds:
+                            break
+                        per_step = max((elapsed - setup) / steps, 1e-9)
+                        # Chunks of at most a twentieth of the budget (and 2 s): progressive updates
+                        # and a stop close to the budget.
+                        slice_ = min(2.0, max(seconds / 20, 0.05))
+                        n = min(n, max(1, math.ceil(min(seconds - elapsed, slice_) / per_step)))
+                advanced = chunk_fn(jax.random.fold_in(key_run, chunks), state, jnp.asarray(n, jnp.int32))
+                drained = host_tally(advanced.tally, totals)  # blocks until the chunk is done
+                # committed together, so that Ctrl-C never leaves a chunk half counted
+                state, totals, steps, chunks = zero_tally(advanced), drained, steps + n, chunks + 1
+                spent = init_cost + steps * step_cost
+                elapsed = time.perf_counter() - start
+                bar.update(spent if evaluations is not None else min(elapsed, seconds), f"{spent / elapsed:.3g} evals/s")
+                if on_update is not None:
+                    image = np.asarray(renderer.image(target, state, totals), np.float32)
+                    on_update(image, _as_floats(renderer.statistics(params, totals)))
+    except KeyboardInterrupt:
+        if totals is None:
+            raise  # nothing finished to keep
+        interrupted = True  # keep every finished chunk
     wall = time.perf_counter() - start
     image = np.asarray(renderer.image(target, state, totals), np.float32)
     return RenderResult(
@@ -222,4 +232,5 @@ def render(
         steps=steps,
         lanes=lanes,
         statistics=_as_floats(renderer.statistics(params, totals)),
+        interrupted=interrupted,
     )
