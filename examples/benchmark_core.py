@@ -14,39 +14,17 @@ from __future__ import annotations
 
 import argparse
 import platform
-import time
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 jax.config.update("jax_enable_x64", True)
 
 import restore  # noqa: E402
+from restore.bench import raw_rate  # noqa: E402  (re-exported for benchmark_general)
 from restore.local import RandomWalk  # noqa: E402
 from restore.regeneration import laplace_mixture  # noqa: E402
 from targets.analytic import well_separated_gaussian_mixture  # noqa: E402
-
-
-def raw_rate(logdensity, x0, steps: int, repeats: int) -> float:
-    """Evaluations per second of jit(vmap(logdensity)) in a scan over `steps` perturbed batches."""
-
-    @jax.jit
-    def run(x):
-        def body(carry, _):
-            x, acc = carry
-            x = x + 1e-9
-            return (x, acc + jnp.sum(jax.vmap(logdensity)(x))), None
-
-        return jax.lax.scan(body, (x, jnp.zeros(())), None, length=steps)[0][1]
-
-    jax.block_until_ready(run(x0))
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        jax.block_until_ready(run(x0))
-        times.append(time.perf_counter() - t)
-    return x0.shape[0] * steps / float(np.median(times))
 
 
 def sampler_rate(sampler, lanes: int, steps: int, repeats: int) -> float:

@@ -83,20 +83,16 @@ def _metrics(image: np.ndarray, reference: np.ndarray) -> dict[str, float]:
 
 
 def _native_run(scene, reference, seconds: float, max_depth: int, seed: int):
-    """Mitsuba's `path` integrator, progressively in passes of 4 spp, for `seconds`; returns image, spp, time, curve."""
-    from targets.mitsuba import render_native
+    """Mitsuba's `path` integrator, progressively, for `seconds`; returns image, spp, time and error curve."""
+    from targets.mitsuba import render_native, render_native_for
 
     render_native(scene, 1, seed=10**6 + seed, max_depth=max_depth)  # compile the kernels outside the budget
-    total, spp, curve = None, 0, []
-    start = time.perf_counter()
-    while True:
-        image = render_native(scene, 4, seed=seed * 100_003 + spp, max_depth=max_depth).astype(np.float64)
-        total = image * 4 if total is None else total + image * 4
-        spp += 4
-        elapsed = time.perf_counter() - start
-        curve.append((elapsed, relative_mse(total / spp, reference)))
-        if elapsed >= seconds:
-            return (total / spp).astype(np.float32), spp, elapsed, curve
+    curve: list[tuple[float, float]] = []
+    native = render_native_for(
+        scene, seconds, max_depth=max_depth, seed=seed,
+        on_update=lambda image, elapsed: curve.append((elapsed, relative_mse(image, reference))),
+    )
+    return native.image, native.spp, native.seconds, curve
 
 
 def compare_renderers(
@@ -233,8 +229,8 @@ def _crop_window(reference: np.ndarray) -> tuple[slice, slice]:
     """A window a quarter of the image wide around the pixel with the largest local contrast."""
     h, w = reference.shape[:2]
     size = max(4, min(h, w) // 4)
-    lum = reference.mean(axis=2)
-    contrast = np.abs(np.gradient(lum)[0]) + np.abs(np.gradient(lum)[1])
+    grad_y, grad_x = np.gradient(reference.mean(axis=2))
+    contrast = np.abs(grad_y) + np.abs(grad_x)
     y, x = np.unravel_index(np.argmax(contrast), contrast.shape)
     y0, x0 = min(max(0, y - size // 2), h - size), min(max(0, x - size // 2), w - size)
     return slice(y0, y0 + size), slice(x0, x0 + size)

@@ -65,11 +65,11 @@ def save_image(path: str | os.PathLike, image, exposure: float = 0.0) -> Path:
         import matplotlib.image
 
         return _atomic_write(path, lambda tmp: matplotlib.image.imsave(tmp, tonemap(array, exposure), format="png"))
-    from targets.mitsuba import load_mitsuba
+    if not path.parent.is_dir():
+        raise FileNotFoundError(f"cannot write {path}: folder {path.parent} does not exist")
+    from targets.mitsuba import write_exr
 
-    mi = load_mitsuba()
-    bitmap = mi.Bitmap(np.ascontiguousarray(array), mi.Bitmap.PixelFormat.RGB)
-    return _atomic_write(path, lambda tmp: bitmap.write(str(tmp)))
+    return write_exr(path, array)
 
 
 def load_image(path: str | os.PathLike) -> np.ndarray:
@@ -81,8 +81,7 @@ def load_image(path: str | os.PathLike) -> np.ndarray:
     if suffix == ".npy":
         return _as_image(np.load(path))
     if suffix == ".exr":
-        from targets.mitsuba import load_mitsuba
+        from targets.mitsuba import read_exr
 
-        mi = load_mitsuba()
-        return _as_image(np.array(mi.Bitmap(str(path)), dtype=np.float32)[..., :3])
+        return _as_image(read_exr(path))
     raise ValueError(f"cannot read {path.name!r}: use an .exr or .npy image")

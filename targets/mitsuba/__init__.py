@@ -15,9 +15,11 @@ from ._llvm import LLVMNotFoundError as LLVMNotFoundError, find_libllvm as find_
 from ._native import (
     NativeRender as NativeRender,
     native_paths_per_second as native_paths_per_second,
+    read_exr as read_exr,
     reference_image as reference_image,
     render_native as render_native,
     render_native_for as render_native_for,
+    write_exr as write_exr,
 )
 from ._path_tracer import dimension as dimension, trace_paths as trace_paths
 from ._scene_checks import UnsupportedSceneError as UnsupportedSceneError

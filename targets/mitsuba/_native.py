@@ -68,9 +68,13 @@ def render_native_for(
     max_depth: int | None = None,
     chunk_spp: int = 4,
     seed: int = 0,
+    on_update: Callable[[np.ndarray, float], None] | None = None,
 ) -> NativeRender:
     """Render progressively, `chunk_spp` samples per pixel at a time with fresh seeds, until
-    `seconds` of wall time are spent (at least one chunk); returns the average image."""
+    `seconds` of wall time are spent (at least one chunk); returns the average image.
+
+    `on_update(image_so_far, elapsed_seconds)`, if given, is called after every chunk
+    (progressive output; its own time counts towards `seconds`)."""
     mi = load_mitsuba()
     chunk_spp = _positive_int(chunk_spp, "chunk_spp")
     if not seconds > 0:
@@ -85,6 +89,9 @@ def render_native_for(
         spp += chunk_spp
         chunk += 1
         elapsed = time.perf_counter() - start
+        if on_update is not None:
+            on_update((total / spp).astype(np.float32), elapsed)
+            elapsed = time.perf_counter() - start
         if elapsed >= seconds:
             return NativeRender((total / spp).astype(np.float32), spp, elapsed)
 
@@ -135,21 +142,35 @@ def reference_image(
     folder = _cache_folder(cache_dir)
     path = folder / f"{key}.exr"
     if path.is_file():
-        with _exr_threads():
-            return np.array(mi.Bitmap(str(path)), dtype=np.float32)[..., :3]
+        return read_exr(path)
     loaded = load_scene(scene, resolution, max_depth)
     image = render_native(loaded, spp, seed=seed, max_depth=max_depth)
     folder.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{key}.", suffix=".exr", dir=folder)
+    write_exr(path, image)
+    return image
+
+
+def write_exr(path: str | Path, image: np.ndarray) -> Path:
+    """Write a linear `(H, W, 3)` image as EXR, atomically (temporary file beside it, then rename)."""
+    mi = load_mitsuba()
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".exr", dir=path.parent)
     os.close(fd)
     try:
         with _exr_threads():
-            mi.util.write_bitmap(tmp, image, write_async=False)
+            mi.util.write_bitmap(tmp, np.ascontiguousarray(image, dtype=np.float32), write_async=False)
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
-    return image
+    return path
+
+
+def read_exr(path: str | Path) -> np.ndarray:
+    """Read an EXR image as `(H, W, 3)` float32."""
+    mi = load_mitsuba()
+    with _exr_threads():
+        return np.array(mi.Bitmap(str(path)), dtype=np.float32)[..., :3]
 
 
 @contextlib.contextmanager
