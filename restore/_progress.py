@@ -7,7 +7,7 @@ from collections.abc import Callable, Iterator
 
 
 @contextlib.contextmanager
-def progress_bar(total: int, description: str, enabled: bool = True) -> Iterator[Callable[[int], None]]:
+def progress_bar(total: int, description: str, enabled: bool = True, completed: int = 0) -> Iterator[Callable[[int], None]]:
     """Yield a function that advances a rich progress bar by a number of steps."""
     if not enabled:
         yield lambda n: None
@@ -23,5 +23,5 @@ def progress_bar(total: int, description: str, enabled: bool = True) -> Iterator
         TimeRemainingColumn(),
     )
     with Progress(*columns, transient=False) as bar:
-        task = bar.add_task(description, total=total)
+        task = bar.add_task(description, total=total, completed=completed)
         yield lambda n: bar.advance(task, n)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import os
 import time
 import warnings
 from collections.abc import Callable, Mapping
@@ -21,6 +22,7 @@ from ._accumulators import (
     update_histogram,
     update_lane_sums,
 )
+from ._checkpoint import CheckpointError, array_digest, key_fingerprint, load_checkpoint, save_checkpoint
 from ._observables import Observables
 from ._progress import progress_bar
 from ._result import SampleResult
@@ -165,6 +167,32 @@ def _replicate(tree, sharding: LaneSharding):
     return eqx.combine(jax.tree.map(lambda x: put(x, sharding.replicated), arrays), rest)
 
 
+class _Saver:
+    """Saves a run's carry to its checkpoint file and loads it back (onto the devices of a sharded run)."""
+
+    def __init__(self, path, fingerprint: dict, layout: _Carry | None):
+        self.path, self.fingerprint, self.layout = path, fingerprint, layout
+        self.last = time.perf_counter()
+
+    def seconds_since_save(self) -> float:
+        return time.perf_counter() - self.last
+
+    def save(self, carry: _Carry, *, done: int, wall_time: float, finished=False, finishing_steps=0, unfinished=0):
+        header = dict(self.fingerprint, done=int(done), wall_time=float(wall_time), finished=bool(finished))
+        header.update(finishing_steps=int(finishing_steps), unfinished=int(unfinished))
+        save_checkpoint(self.path, to_host(carry) if self.layout is not None else carry, header)
+        self.last = time.perf_counter()
+
+    def load(self, like: _Carry) -> tuple[_Carry, dict]:
+        carry, header = load_checkpoint(self.path, like, self.fingerprint)
+        if self.layout is not None:
+            carry = jax.tree.map(put, carry, self.layout)
+        else:
+            carry = jax.tree.map(jnp.asarray, carry)
+        self.last = time.perf_counter()
+        return carry, header
+
+
 def _thinning(num_steps: int, num_lanes: int, max_draws: int, thin: int | None) -> tuple[int, int]:
     if thin is None:
         thin = max(1, math.ceil(num_steps * num_lanes / max_draws)) if max_draws > 0 else num_steps + 1
@@ -189,6 +217,10 @@ def sample(
     num_chunks: int = 50,
     finish_tours: bool = True,
     devices: Devices = None,
+    checkpoint: str | os.PathLike | None = None,
+    checkpoint_steps: int | None = None,
+    checkpoint_seconds: float | None = 60.0,
+    resume: bool = True,
 ) -> SampleResult:
     """Run `num_lanes` independent lanes for `num_steps` steps each and stream estimates.
 
@@ -240,11 +272,26 @@ def sample(
             multi-host path is written to the documented multi-controller API but was
             tested only with several (forced CPU) devices in one process; see
             `docs/scaling.md`.
+        checkpoint: a file to save the run's full state to (lane states, per-lane sums,
+            tour histogram, stored draws, step count; keys are derived from `key` and the
+            step count, so they need no saving), atomically, every `checkpoint_steps`
+            steps and/or `checkpoint_seconds` seconds, when the step budget is spent, on
+            Ctrl-C, and when the run is finished. If the file exists (and `resume`), the
+            run continues from it: an interrupted and resumed run gives results
+            bit-identical to an uninterrupted one with the same key and arguments, and a
+            finished checkpoint returns its result at once. A checkpoint of another run
+            (other key, sizes, sampler parameters, observables or devices) is refused with
+            a `CheckpointError` that says what differs.
+        checkpoint_steps: save every this many steps (chunks are cut to land on them).
+        checkpoint_seconds: save when this many seconds have passed since the last save
+            (checked between chunks); `None` for step-based saves only.
+        resume: continue from an existing `checkpoint` file (default); `False` starts
+            afresh and overwrites it.
 
     Returns:
         A `SampleResult` with estimates, standard errors and diagnostics. Interrupting
         with Ctrl-C returns the result of the chunks completed so far (marked
-        `interrupted`).
+        `interrupted`), after saving it to `checkpoint` if one is given.
     """
     for name, value in (("num_lanes", num_lanes), ("num_steps", num_steps), ("num_chunks", num_chunks)):
         if isinstance(value, bool) or int(value) != value or value < 1:
@@ -252,6 +299,14 @@ def sample(
     if weights not in ("rao_blackwell", "time"):
         raise ValueError(f"weights must be 'rao_blackwell' or 'time', got {weights!r}")
     num_lanes, num_steps = int(num_lanes), int(num_steps)
+    if checkpoint_steps is not None and (
+        isinstance(checkpoint_steps, bool) or int(checkpoint_steps) != checkpoint_steps or checkpoint_steps < 1
+    ):
+        raise ValueError(f"checkpoint_steps must be a positive integer or None, got {checkpoint_steps!r}")
+    if checkpoint_seconds is not None and not (
+        isinstance(checkpoint_seconds, (int, float)) and not isinstance(checkpoint_seconds, bool) and checkpoint_seconds > 0
+    ):
+        raise ValueError(f"checkpoint_seconds must be a positive number or None, got {checkpoint_seconds!r}")
     sharding = lane_sharding(devices, num_lanes)
     if not hasattr(sampler, "init") or not hasattr(sampler, "step"):
         raise TypeError(f"sampler must have init and step methods, got {type(sampler).__name__}")
@@ -296,6 +351,7 @@ def sample(
         )
 
     lane_keys = _lane_keys(key_run, num_lanes)
+    layout = None
     if sharding is None:
         carry = start_carry(states)
     else:  # created in place on the devices, each holding its own lanes
@@ -305,38 +361,85 @@ def sample(
     chunk = math.ceil(num_steps / min(num_chunks, num_steps))
     rao_blackwell = weights == "rao_blackwell"
 
-    start, done, interrupted = time.perf_counter(), 0, False
+    saver = None
+    done, finishing_steps, unfinished, finished, spent = 0, 0, 0, False, 0.0
+    if checkpoint is not None:
+        fingerprint = {
+            "key": key_fingerprint(key),
+            "sampler": type(sampler).__name__,
+            "sampler_arrays": array_digest(sampler),
+            "num_lanes": num_lanes,
+            "num_steps": num_steps,
+            "dim": dim,
+            "dtype": str(dtype),
+            "observables": [[slot.name, list(slot.shape)] for slot in observe.slots],
+            "weights": weights,
+            "thin": thin,
+            "stored": stored,
+            "positions": None if positions is None else array_digest(positions),
+            "finish_tours": bool(finish_tours),
+            "num_devices": 1 if sharding is None else sharding.num_devices,
+        }
+        saver = _Saver(checkpoint, fingerprint, layout)
+        if resume and os.path.exists(checkpoint):
+            carry, header = saver.load(carry)
+            done, spent, finished = header["done"], header["wall_time"], header["finished"]
+            finishing_steps, unfinished = header["finishing_steps"], header["unfinished"]
+            if int(carry.step) != done + finishing_steps:
+                raise CheckpointError(f"checkpoint {checkpoint} is inconsistent: step {int(carry.step)}, header {done}")
+
+    start, interrupted = time.perf_counter(), False
+    elapsed = lambda: spent + time.perf_counter() - start  # noqa: E731
     label = f"{type(sampler).__name__}: {num_lanes} lanes"
     if sharding is not None:
         label += f" on {sharding.num_devices} devices"
-    with progress_bar(num_steps, label, enabled=progress) as advance:
+    with progress_bar(num_steps, label, enabled=progress, completed=done) as advance:
         try:
             while done < num_steps:
                 length = min(chunk, num_steps - done)
+                if saver is not None and checkpoint_steps is not None:  # land on the next checkpoint step
+                    length = min(length, checkpoint_steps - done % checkpoint_steps)
                 steps = jnp.asarray(length, jnp.int32)
                 finishing = jnp.asarray(False)
-                carry, _ = _advance(sampler, observe, carry, lane_keys, steps, finishing, thin, rao_blackwell, sharding)
-                carry = jax.block_until_ready(carry)
+                advanced, _ = _advance(sampler, observe, carry, lane_keys, steps, finishing, thin, rao_blackwell, sharding)
+                carry = jax.block_until_ready(advanced)
                 done += length
                 advance(length)
+                if saver is not None and (
+                    done == num_steps
+                    or (checkpoint_steps is not None and done % checkpoint_steps == 0)
+                    or (checkpoint_seconds is not None and saver.seconds_since_save() >= checkpoint_seconds)
+                ):
+                    saver.save(carry, done=done, wall_time=elapsed())
         except KeyboardInterrupt:
             interrupted = True
+            done = int(carry.step)  # the last chunk that finished (the carry is replaced only once it has)
+            if saver is not None:
+                saver.save(carry, done=done, wall_time=elapsed())
             warnings.warn(f"interrupted after {done} of {num_steps} steps; returning the partial result", stacklevel=2)
-    finishing_steps = unfinished = 0
-    if getattr(sampler, "has_tours", False) and not interrupted and finish_tours:
+    if getattr(sampler, "has_tours", False) and not interrupted and finish_tours and not finished:
         budget = jnp.asarray(num_steps, jnp.int32)
-        carry, finishing_steps = _advance(
-            sampler, observe, carry, lane_keys, budget, jnp.asarray(True), thin, rao_blackwell, sharding
-        )
-        finishing_steps, unfinished = int(finishing_steps), int(jnp.sum(_active(carry)))
-        if unfinished:
-            warnings.warn(
-                f"{unfinished} lanes still had an open tour after {finishing_steps} extra steps; those tours are "
-                "left out of the tour-based estimates (tour lengths may be heavy-tailed)",
-                RuntimeWarning,
-                stacklevel=2,
+        try:
+            ended, extra = _advance(
+                sampler, observe, carry, lane_keys, budget, jnp.asarray(True), thin, rao_blackwell, sharding
             )
-    wall_time = time.perf_counter() - start
+            extra, still_open = int(extra), int(jnp.sum(_active(ended)))
+            carry, finishing_steps, unfinished = ended, extra, still_open
+        except KeyboardInterrupt:  # keep the budget's result; its open tours are dropped
+            interrupted = True
+            warnings.warn("interrupted while finishing the open tours; returning the result without them", stacklevel=2)
+    if saver is not None and not interrupted and not finished:
+        saver.save(
+            carry, done=done, wall_time=elapsed(), finished=True, finishing_steps=finishing_steps, unfinished=unfinished
+        )
+    if unfinished:
+        warnings.warn(
+            f"{unfinished} lanes still had an open tour after {finishing_steps} extra steps; those tours are "
+            "left out of the tour-based estimates (tour lengths may be heavy-tailed)",
+            RuntimeWarning,
+            stacklevel=2,
+        )
+    wall_time = elapsed()
     if sharding is not None:
         carry = to_host(carry)  # numpy, gathered over devices (and processes)
         carry = carry._replace(histogram=tuple(h.sum(axis=0) for h in carry.histogram))

@@ -144,6 +144,9 @@ def render(
     tour_length: float = typer.Option(32.0, min=1e-6, help="Restore's mean tour length; PSSMLT's large-step probability is 1/(1 + it)."),
     seed: int = typer.Option(0, help="Random seed."),
     progress: bool = typer.Option(True, help="Show a progress bar."),
+    checkpoint: Path | None = typer.Option(
+        None, help="Save the render's state to this file every minute, at the end and on Ctrl-C; resume from it if it exists (PSS methods)."
+    ),
 ) -> None:
     """Render a Mitsuba scene with Metropolis Restore, a baseline, or Mitsuba's own path tracer."""
     from .render._methods import GRADIENT_METHODS, METHODS
@@ -156,13 +159,17 @@ def render(
         _fail(f"--out must end in .exr or .npy, got {out.name!r}")
     if not out.parent.is_dir():
         _fail(f"folder {out.parent} does not exist")
+    if checkpoint is not None and method == "path":
+        _fail("--checkpoint works with the PSS methods; Mitsuba's path tracer (--method path) has no resumable state")
+    if checkpoint is not None and not checkpoint.parent.is_dir():
+        _fail(f"folder {checkpoint.parent} of --checkpoint does not exist")
     width, height = _resolution(resolution)
     try:
         from targets.mitsuba import LLVMNotFoundError, UnsupportedSceneError
     except ImportError as error:  # pragma: no cover - targets ships with the package
         _fail(str(error))
     try:
-        image, summary = _render(scene, method, time_budget, evaluations, (width, height), max_depth, lanes, tour_length, seed, progress, method in GRADIENT_METHODS)
+        image, summary = _render(scene, method, time_budget, evaluations, (width, height), max_depth, lanes, tour_length, seed, progress, method in GRADIENT_METHODS, checkpoint)
     except (FileNotFoundError, UnsupportedSceneError, LLVMNotFoundError, ImportError) as error:
         _fail(str(error))
     except ValueError as error:
@@ -175,7 +182,7 @@ def render(
     console.print(f"Image written to {out} (preview {preview})")
 
 
-def _render(scene, method, seconds, evaluations, resolution, max_depth, lanes, tour_length, seed, progress, needs_gradient):
+def _render(scene, method, seconds, evaluations, resolution, max_depth, lanes, tour_length, seed, progress, needs_gradient, checkpoint=None):
     """Run one render; returns the image and a one-line summary."""
     import jax
     import numpy as np
@@ -190,7 +197,8 @@ def _render(scene, method, seconds, evaluations, resolution, max_depth, lanes, t
             image = render_native(loaded, spp, seed=seed, max_depth=max_depth)
             return image, f"path: {spp} spp ({spp * pixels:,} paths)"
         native = render_native_for(loaded, seconds, max_depth=max_depth, seed=seed)
-        return native.image, f"path: {native.spp} spp ({native.spp * pixels:,} paths) in {native.seconds:.1f} s"
+        note = "; [bold yellow]interrupted by Ctrl-C: the image holds the finished passes[/]" if native.interrupted else ""
+        return native.image, f"path: {native.spp} spp ({native.spp * pixels:,} paths) in {native.seconds:.1f} s{note}"
     from .render import render as run_render
     from .render._methods import make_renderer
 
@@ -199,11 +207,13 @@ def _render(scene, method, seconds, evaluations, resolution, max_depth, lanes, t
         target.check_gradient_support()
     result = run_render(
         target, make_renderer(method, tour_length=tour_length), key=jax.random.key(seed), seconds=seconds,
-        evaluations=evaluations, lanes=lanes, progress=progress,
+        evaluations=evaluations, lanes=lanes, progress=progress, checkpoint=checkpoint,
     )
     stats = ", ".join(f"{k} {v:.4g}" for k, v in result.statistics.items() if np.isfinite(v))
     if result.interrupted:
         stats += "; [bold yellow]interrupted by Ctrl-C: the image holds the finished part of the run[/]"
+        if checkpoint is not None:
+            stats += f" (run the same command again to resume from {checkpoint})"
     return result.image, (
         f"{method}: {result.evaluations:,} paths in {result.seconds:.1f} s (+{result.compile_seconds:.1f} s compile), "
         f"{result.evaluations_per_second:,.0f} paths/s; {stats}"

@@ -79,3 +79,37 @@ def test_render_compare_writes_the_table_figures_and_ratios(tmp_path, monkeypatc
     assert (out / "scene-cornell_box.png").stat().st_size > 10_000
     rows = (out / "results.csv").read_text().splitlines()
     assert len(rows) == 1 + 3 * 2
+
+
+def test_render_checkpoint_resumes_to_the_same_image(tmp_path):
+    from restore._checkpoint import read_header
+    from restore.render._images import load_image
+
+    args = ("render", "cornell_box", "--method", "restore", "--evaluations", 100_000, "--resolution", 8,
+            "--max-depth", 2, "--lanes", 256, "--no-progress", "--checkpoint", tmp_path / "run.ckpt")
+    first = _invoke(*args, "--out", tmp_path / "first.npy")
+    assert first.exit_code == 0, first.output
+    assert read_header(tmp_path / "run.ckpt")["lanes"] == 256
+    again = _invoke(*args, "--out", tmp_path / "again.npy")  # resumed from the finished checkpoint
+    assert again.exit_code == 0, again.output
+    np.testing.assert_array_equal(load_image(tmp_path / "again.npy"), load_image(tmp_path / "first.npy"))
+    refused = _invoke(*args[:-2], "--checkpoint", tmp_path / "run.ckpt", "--seed", 1, "--out", tmp_path / "x.npy")
+    assert refused.exit_code == 2 and "belongs to another run" in refused.output, refused.output
+    path = _invoke("render", "cornell_box", "--method", "path", "--time", 1, "--checkpoint", tmp_path / "p.ckpt")
+    assert path.exit_code == 2 and "--checkpoint works with the PSS methods" in path.output
+
+
+def test_native_render_keeps_the_finished_passes_on_ctrl_c():
+    from targets.mitsuba import load_scene, render_native_for
+
+    calls = []
+
+    def interrupt_on_the_second_pass(image, elapsed):
+        calls.append(image)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+
+    scene = load_scene("cornell_box", (8, 8), 2)
+    native = render_native_for(scene, 60.0, chunk_spp=2, on_update=interrupt_on_the_second_pass)
+    assert native.interrupted and native.spp == 4 and native.seconds < 60.0
+    np.testing.assert_array_equal(native.image, calls[1])

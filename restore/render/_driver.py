@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import time
 from collections.abc import Callable
 from typing import Any
@@ -12,8 +13,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._checkpoint import key_fingerprint, load_checkpoint, save_checkpoint
 from ._pss import check_target
-from ._renderer import AbstractRenderer, check_count, check_lanes, host_params, host_tally, zero_tally
+from ._renderer import (
+    AbstractRenderer,
+    check_count,
+    check_lanes,
+    host_params,
+    host_tally,
+    host_tally_dtype,
+    zero_tally,
+)
 
 #: Default work per jitted chunk when `chunk` is not given (target evaluations).
 _CHUNK_EVALUATIONS = 2**20
@@ -113,6 +123,9 @@ def render(
     chunk: int | None = None,
     progress: bool = True,
     on_update: Callable[[np.ndarray, dict[str, float]], None] | None = None,
+    checkpoint: str | os.PathLike | None = None,
+    checkpoint_seconds: float | None = 60.0,
+    resume: bool = True,
 ) -> RenderResult:
     """Render `target` with `renderer` until the time or evaluation budget is spent.
 
@@ -140,6 +153,18 @@ def render(
         chunk: steps per jitted call; default about 2^20 evaluations' worth.
         progress: show a rich progress bar.
         on_update: called as `on_update(image, statistics)` after every chunk.
+        checkpoint: a file to save the run to (renderer state, float64 host tallies,
+            step and chunk counts, time spent), atomically, every `checkpoint_seconds`,
+            at the end and on Ctrl-C. If it exists (and `resume`), the render continues
+            from it. Chunk keys follow the chunk count, so with an `evaluations` budget
+            and a fixed `chunk` an interrupted and resumed render is bit-identical to an
+            uninterrupted one; under a time budget the chunk lengths follow the clock, so
+            a resumed render is a valid continuation but not a bit-identical one. A
+            checkpoint of another render (key, renderer, target, lanes, chunk, budget)
+            is refused with a `CheckpointError`.
+        checkpoint_seconds: seconds between saves (checked between chunks); `None`
+            saves only at the end and on Ctrl-C.
+        resume: continue from an existing `checkpoint` (default); `False` overwrites it.
 
     Returns:
         A `RenderResult`.
@@ -153,6 +178,10 @@ def render(
     check_target(target, needs_gradient=renderer.uses_gradient)
     seconds, evaluations = _check_budget(seconds, evaluations)
     lanes = check_lanes(lanes)
+    if checkpoint_seconds is not None and (
+        isinstance(checkpoint_seconds, bool) or not isinstance(checkpoint_seconds, (int, float)) or checkpoint_seconds <= 0
+    ):
+        raise ValueError(f"checkpoint_seconds must be a positive number or None, got {checkpoint_seconds!r}")
     if on_update is not None and not callable(on_update):
         raise TypeError("on_update must be callable as on_update(image, statistics)")
     init_cost, step_cost = renderer.init_cost(lanes), renderer.step_cost(lanes)
@@ -173,56 +202,90 @@ def render(
             )
 
     key_init, key_run = jax.random.split(key)
-    t0 = time.perf_counter()
-    init_fn = jax.jit(lambda k: renderer.init(target, k, lanes)).lower(key_init).compile()
     state_shape = jax.eval_shape(lambda k: renderer.init(target, k, lanes), key_init)
-    n_spec = jax.ShapeDtypeStruct((), jnp.int32)
-    chunk_fn = jax.jit(lambda k, s, n: renderer.run(target, k, s, n)).lower(key_run, state_shape, n_spec).compile()
-    # One throwaway step, so that a target's own first-call work (e.g. Dr.Jit recording its
-    # kernels for these batch sizes) is paid here, outside the budget, as with any compilation.
-    warm_key = jax.random.fold_in(key_init, 1)
-    jax.block_until_ready(chunk_fn(warm_key, init_fn(warm_key), jnp.asarray(1, jnp.int32)))
-    compile_seconds = time.perf_counter() - t0
-
     name = type(renderer).__name__
     total, unit = (float(evaluations), "evals") if evaluations is not None else (seconds, "s")
+    fingerprint = {
+        "key": key_fingerprint(key),
+        "renderer": repr(renderer),
+        "target": [type(target).__name__, target.dim, list(target.resolution)],
+        "lanes": lanes,
+        "chunk": chunk,
+        "evaluations": evaluations,
+        "seconds": seconds,
+    }
+    state, totals, steps, chunks, interrupted, spent = None, None, 0, 0, False, 0.0
+    if checkpoint is not None and resume and os.path.exists(checkpoint):  # checked before any compilation
+        tally_like = jax.tree.map(lambda x: np.zeros(x.shape, host_tally_dtype(x)), state_shape.tally)
+        (state, totals), header = load_checkpoint(checkpoint, (state_shape, tally_like), fingerprint)
+        state = jax.tree.map(jnp.asarray, state)
+        steps, chunks, spent = header["steps"], header["chunks"], header["seconds_spent"]
+    done = (max_steps is not None and steps >= max_steps) or (seconds is not None and spent >= seconds)
+
+    t0 = time.perf_counter()
+    if state is None:
+        init_fn = jax.jit(lambda k: renderer.init(target, k, lanes)).lower(key_init).compile()
+    if not done:
+        n_spec = jax.ShapeDtypeStruct((), jnp.int32)
+        chunk_fn = jax.jit(lambda k, s, n: renderer.run(target, k, s, n)).lower(key_run, state_shape, n_spec).compile()
+        # One throwaway step, so that a target's own first-call work (e.g. Dr.Jit recording its
+        # kernels for these batch sizes) is paid here, outside the budget, as with any compilation.
+        warm_key = jax.random.fold_in(key_init, 1)
+        warm_state = init_fn(warm_key) if state is None else state
+        jax.block_until_ready(chunk_fn(warm_key, warm_state, jnp.asarray(1, jnp.int32)))
+    compile_seconds = time.perf_counter() - t0
+
     start = time.perf_counter()
-    state = jax.block_until_ready(init_fn(key_init))
+    if state is None:
+        state = jax.block_until_ready(init_fn(key_init))
     params = host_params(state.params)
     renderer.check(params)
     setup = time.perf_counter() - start
-    totals, steps, chunks, interrupted = None, 0, 0, False
+    first_step, last_save = steps, time.perf_counter()
+    elapsed = lambda: spent + time.perf_counter() - start  # noqa: E731
+
+    saved_steps = steps
+
+    def save():
+        nonlocal last_save, saved_steps
+        if checkpoint is not None and steps > saved_steps:  # only progress is worth a write
+            header = dict(fingerprint, steps=steps, chunks=chunks, seconds_spent=elapsed())
+            save_checkpoint(checkpoint, (state, totals), header)
+            last_save, saved_steps = time.perf_counter(), steps
+
     try:
         with _Progress(progress, f"render {name}", total, unit) as bar:
             while max_steps is None or steps < max_steps:
-                elapsed = time.perf_counter() - start
                 n = chunk if max_steps is None else min(chunk, max_steps - steps)
                 if seconds is not None:
-                    if steps == 0:
+                    if elapsed() >= seconds and totals is not None:
+                        break
+                    if steps == first_step:
                         n = 1  # measure the time per step before committing to a chunk
                     else:
-                        if elapsed >= seconds:
-                            break
-                        per_step = max((elapsed - setup) / steps, 1e-9)
+                        per_step = max((time.perf_counter() - start - setup) / (steps - first_step), 1e-9)
                         # Chunks of at most a twentieth of the budget (and 2 s): progressive updates
                         # and a stop close to the budget.
                         slice_ = min(2.0, max(seconds / 20, 0.05))
-                        n = min(n, max(1, math.ceil(min(seconds - elapsed, slice_) / per_step)))
+                        n = min(n, max(1, math.ceil(min(seconds - elapsed(), slice_) / per_step)))
                 advanced = chunk_fn(jax.random.fold_in(key_run, chunks), state, jnp.asarray(n, jnp.int32))
                 drained = host_tally(advanced.tally, totals)  # blocks until the chunk is done
                 # committed together, so that Ctrl-C never leaves a chunk half counted
                 state, totals, steps, chunks = zero_tally(advanced), drained, steps + n, chunks + 1
-                spent = init_cost + steps * step_cost
-                elapsed = time.perf_counter() - start
-                bar.update(spent if evaluations is not None else min(elapsed, seconds), f"{spent / elapsed:.3g} evals/s")
+                spent_evaluations = init_cost + steps * step_cost
+                rate = spent_evaluations / max(elapsed(), 1e-9)
+                bar.update(spent_evaluations if evaluations is not None else min(elapsed(), seconds), f"{rate:.3g} evals/s")
                 if on_update is not None:
                     image = np.asarray(renderer.image(target, state, totals), np.float32)
                     on_update(image, _as_floats(renderer.statistics(params, totals)))
+                if checkpoint_seconds is not None and time.perf_counter() - last_save >= checkpoint_seconds:
+                    save()
     except KeyboardInterrupt:
         if totals is None:
             raise  # nothing finished to keep
         interrupted = True  # keep every finished chunk
-    wall = time.perf_counter() - start
+    save()
+    wall = elapsed()
     image = np.asarray(renderer.image(target, state, totals), np.float32)
     return RenderResult(
         image=image,

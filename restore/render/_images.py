@@ -7,10 +7,11 @@ the destination, so an interrupted write never leaves a truncated image behind.
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
+
+from .._io import atomic_write
 
 IMAGE_SUFFIXES = (".exr", ".npy", ".png")
 
@@ -30,23 +31,6 @@ def tonemap(image, exposure: float = 0.0) -> np.ndarray:
     return np.round(srgb * 255).astype(np.uint8)
 
 
-def _atomic_write(path: Path, write) -> Path:
-    """Call `write(tmp_path)` on a temporary file beside `path`, then rename it to `path`."""
-    path = Path(path)
-    folder = path.parent if str(path.parent) else Path(".")
-    if not folder.is_dir():
-        raise FileNotFoundError(f"cannot write {path}: folder {folder} does not exist")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}-", suffix=path.suffix, dir=folder)
-    os.close(fd)
-    try:
-        write(Path(tmp))
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
-
-
 def save_image(path: str | os.PathLike, image, exposure: float = 0.0) -> Path:
     """Write `image` `(H, W, 3)` to `path`: `.exr` (linear float, needs Mitsuba), `.npy`, or `.png` (tonemapped).
 
@@ -60,11 +44,11 @@ def save_image(path: str | os.PathLike, image, exposure: float = 0.0) -> Path:
         raise ValueError(f"unsupported image file {path.name!r}: use one of {', '.join(IMAGE_SUFFIXES)}")
     array = _as_image(image)
     if suffix == ".npy":
-        return _atomic_write(path, lambda tmp: np.save(tmp, array))
+        return atomic_write(path, lambda tmp: np.save(tmp, array))
     if suffix == ".png":
         import matplotlib.image
 
-        return _atomic_write(path, lambda tmp: matplotlib.image.imsave(tmp, tonemap(array, exposure), format="png"))
+        return atomic_write(path, lambda tmp: matplotlib.image.imsave(tmp, tonemap(array, exposure), format="png"))
     if not path.parent.is_dir():
         raise FileNotFoundError(f"cannot write {path}: folder {path.parent} does not exist")
     from targets.mitsuba import write_exr

@@ -53,9 +53,14 @@ def zero_tally(state):
     return state._replace(tally=jax.tree.map(jnp.zeros_like, state.tally))
 
 
+def host_tally_dtype(x):
+    """The host dtype a device tally leaf is summed in: float64 for floats, int64 otherwise."""
+    return np.float64 if jnp.issubdtype(x.dtype, jnp.floating) else np.int64
+
+
 def host_tally(tally, total=None):
     """Add a device tally to float64 / int64 host totals (or start them)."""
-    as_host = lambda x: np.asarray(x, np.float64 if jnp.issubdtype(x.dtype, jnp.floating) else np.int64)  # noqa: E731
+    as_host = lambda x: np.asarray(x, host_tally_dtype(x))  # noqa: E731
     tally = jax.tree.map(as_host, tally)
     return tally if total is None else jax.tree.map(np.add, total, tally)
 

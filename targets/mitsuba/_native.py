@@ -27,11 +27,16 @@ CACHE_ENV_VAR = "RESTORE_CACHE_DIR"
 
 
 class NativeRender(NamedTuple):
-    """An equal-time native render: the average `image (H, W, 3)`, its total `spp` and `seconds`."""
+    """An equal-time native render: the average `image (H, W, 3)`, its total `spp` and `seconds`.
+
+    `interrupted` is true when Ctrl-C stopped the render early; the image then averages
+    the passes that finished.
+    """
 
     image: np.ndarray
     spp: int
     seconds: float
+    interrupted: bool = False
 
 
 def render_native(scene: Any, spp: int, seed: int = 0, max_depth: int | None = None) -> np.ndarray:
@@ -74,7 +79,8 @@ def render_native_for(
     `seconds` of wall time are spent (at least one chunk); returns the average image.
 
     `on_update(image_so_far, elapsed_seconds)`, if given, is called after every chunk
-    (progressive output; its own time counts towards `seconds`)."""
+    (progressive output; its own time counts towards `seconds`). Ctrl-C stops the render
+    and returns the passes that finished, marked `interrupted`."""
     mi = load_mitsuba()
     chunk_spp = _positive_int(chunk_spp, "chunk_spp")
     if not seconds > 0:
@@ -82,18 +88,22 @@ def render_native_for(
     integrator = _integrator(mi, scene, max_depth)
     total, spp, chunk = None, 0, 0
     start = time.perf_counter()
-    while True:
-        image = mi.render(scene, integrator=integrator, spp=chunk_spp, seed=_pass_seed(seed, chunk))
-        image = np.array(image, dtype=np.float64)[..., :3]
-        total = image * chunk_spp if total is None else total + image * chunk_spp
-        spp += chunk_spp
-        chunk += 1
-        elapsed = time.perf_counter() - start
-        if on_update is not None:
-            on_update((total / spp).astype(np.float32), elapsed)
+    try:
+        while True:
+            image = mi.render(scene, integrator=integrator, spp=chunk_spp, seed=_pass_seed(seed, chunk))
+            image = np.array(image, dtype=np.float64)[..., :3] * chunk_spp
+            # committed together, so that Ctrl-C never leaves a pass half counted
+            total, spp, chunk = (image if total is None else total + image), spp + chunk_spp, chunk + 1
             elapsed = time.perf_counter() - start
-        if elapsed >= seconds:
-            return NativeRender((total / spp).astype(np.float32), spp, elapsed)
+            if on_update is not None:
+                on_update((total / spp).astype(np.float32), elapsed)
+                elapsed = time.perf_counter() - start
+            if elapsed >= seconds:
+                return NativeRender((total / spp).astype(np.float32), spp, elapsed)
+    except KeyboardInterrupt:
+        if total is None:
+            raise  # nothing finished to keep
+        return NativeRender((total / spp).astype(np.float32), spp, time.perf_counter() - start, interrupted=True)
 
 
 def native_paths_per_second(
@@ -131,7 +141,10 @@ def reference_image(
     Arguments:
         scene: a registry name, a scene dictionary or an XML path (see `load_scene`).
         spp: samples per pixel of the reference.
-        resolution, max_depth: overrides passed to `load_scene`.
+        resolution: film size override passed to `load_scene`.
+        max_depth: maximum path depth override passed to `load_scene`.
+        cache_dir: the cache folder (see above).
+        seed: the sampler seed of the render (part of the cache key).
 
     Returns:
         The `(H, W, 3)` float32 image.

@@ -1,0 +1,67 @@
+"""Renders that are interrupted and resumed from a checkpoint (on `AnalyticImage`, no Mitsuba)."""
+
+import jax
+import numpy as np
+import pytest
+
+from restore._checkpoint import CheckpointError, read_header
+from restore.render import ERPT, PSSMLT, MetropolisRestore, render
+from targets import AnalyticImage
+
+TARGET = AnalyticImage.default(dim=3, resolution=(8, 8), num_bumps=3)
+BUDGET = dict(key=jax.random.key(2), evaluations=120_000, lanes=128, chunk=40, progress=False)
+
+
+def _interrupt_after(chunks: int):
+    calls = []
+
+    def on_update(image, statistics):
+        calls.append(1)
+        if len(calls) == chunks:
+            raise KeyboardInterrupt
+
+    return on_update
+
+
+@pytest.mark.parametrize("renderer", [MetropolisRestore(), ERPT(chain_length=4)], ids=lambda r: type(r).__name__)
+def test_interrupted_and_resumed_render_is_bit_identical(renderer, tmp_path):
+    checkpoint = tmp_path / "render.ckpt"
+    reference = render(TARGET, renderer, **BUDGET)
+    partial = render(TARGET, renderer, checkpoint=checkpoint, on_update=_interrupt_after(2), **BUDGET)
+    assert partial.interrupted and 0 < partial.steps < reference.steps
+    assert read_header(checkpoint)["steps"] == partial.steps
+    resumed = render(TARGET, renderer, checkpoint=checkpoint, **BUDGET)
+    assert not resumed.interrupted
+    assert (resumed.steps, resumed.evaluations) == (reference.steps, reference.evaluations)
+    np.testing.assert_array_equal(resumed.image, reference.image)
+    assert resumed.statistics == reference.statistics
+    again = render(TARGET, renderer, checkpoint=checkpoint, **BUDGET)  # finished: no compilation, no step
+    np.testing.assert_array_equal(again.image, reference.image)
+    assert again.compile_seconds < 1.0
+
+
+def test_time_budget_counts_the_time_spent_before_the_interruption(tmp_path):
+    checkpoint = tmp_path / "render.ckpt"
+    budget = dict(key=jax.random.key(0), seconds=1.5, lanes=128, progress=False, checkpoint=checkpoint)
+    partial = render(TARGET, MetropolisRestore(), on_update=_interrupt_after(3), **budget)
+    assert partial.interrupted
+    resumed = render(TARGET, MetropolisRestore(), **budget)
+    assert resumed.steps > partial.steps
+    assert resumed.seconds == pytest.approx(1.5, abs=0.5)  # the whole run's time, both sessions
+    assert read_header(checkpoint)["seconds_spent"] == pytest.approx(resumed.seconds, abs=0.1)
+
+
+def test_checkpoint_of_another_render_is_refused(tmp_path):
+    checkpoint = tmp_path / "render.ckpt"
+    render(TARGET, MetropolisRestore(), checkpoint=checkpoint, **BUDGET)
+    with pytest.raises(CheckpointError, match="renderer: checkpoint has"):
+        render(TARGET, PSSMLT(), checkpoint=checkpoint, **BUDGET)
+    with pytest.raises(CheckpointError, match="lanes: checkpoint has 128, this run has 64"):
+        render(TARGET, MetropolisRestore(), checkpoint=checkpoint, **{**BUDGET, "lanes": 64})
+    fresh = render(TARGET, PSSMLT(), checkpoint=checkpoint, resume=False, **BUDGET)
+    assert not fresh.interrupted and "PSSMLT" in read_header(checkpoint)["renderer"]
+
+
+def test_bad_checkpoint_interval_is_rejected():
+    with pytest.raises(ValueError, match="checkpoint_seconds must be a positive number"):
+        render(TARGET, MetropolisRestore(), checkpoint_seconds=0, **BUDGET)
