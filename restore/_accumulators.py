@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 #: Tour durations are binned on a log10 scale over this range for the tail diagnostics.
@@ -121,3 +122,53 @@ def update_histogram(hist: tuple[Array, Array], durations: Array, mask: Array) -
 
 def init_histogram(dtype) -> tuple[Array, Array]:
     return jnp.zeros((HISTOGRAM_BINS,), dtype), jnp.zeros((HISTOGRAM_BINS,), dtype)
+
+
+# Sums that grow with the run are drained to float64 / int64 host totals after every chunk
+# and restarted on the device, so float32 runs keep full precision over any number of
+# steps (a float32 sum of 10^6 terms can be off by percents) and int32 counts never
+# overflow. The open tour's partial sums, the step counter of the open tour and the
+# `skip_first` flags stay on the device: they are state, not totals.
+_ADDITIVE = (
+    "sum_f", "sum_f2", "sum_ft", "sum_t", "sum_t2", "num_tours", "all_f", "all_f2", "all_t", "num_iw",
+    "num_invalid", "num_uncovered", "num_accepted", "num_regenerations", "num_negative_rate", "num_bound_exceeded",
+)  # fmt: skip
+_LOG_ADDITIVE = ("log_iw_sum", "log_iw_sum2")
+_MAXIMA = ("max_tour", "max_bound_ratio")
+
+
+def restart_sums(sums: LaneSums) -> LaneSums:
+    """The device sums after a drain: totals restarted (zero, or `-inf` for log sums), state kept."""
+    restarted = {name: jnp.zeros_like(getattr(sums, name)) for name in _ADDITIVE}
+    restarted.update({name: jnp.full_like(getattr(sums, name), -jnp.inf) for name in _LOG_ADDITIVE})
+    return sums._replace(**restarted)
+
+
+def _host(x) -> np.ndarray:
+    x = np.asarray(x)
+    if np.issubdtype(x.dtype, np.floating):
+        return x.astype(np.float64)
+    return x.astype(np.int64) if np.issubdtype(x.dtype, np.integer) else x
+
+
+def drain_sums(total: LaneSums | None, sums: LaneSums) -> LaneSums:
+    """Host totals plus the device sums of one chunk (NumPy, float64 / int64).
+
+    Additive fields are added, log sums combined with `logaddexp`, maxima maximised; the
+    state fields (open tour, `skip_first`) are taken from `sums`, the latest.
+    """
+    sums = LaneSums(*(_host(x) for x in sums))
+    if total is None:
+        return sums
+    merged = {name: getattr(total, name) + getattr(sums, name) for name in _ADDITIVE}
+    merged.update({name: np.logaddexp(getattr(total, name), getattr(sums, name)) for name in _LOG_ADDITIVE})
+    merged.update({name: np.maximum(getattr(total, name), getattr(sums, name)) for name in _MAXIMA})
+    return sums._replace(**merged)
+
+
+def drain_histogram(total: tuple | None, histogram: tuple) -> tuple[np.ndarray, np.ndarray]:
+    """Host totals of the tour histogram plus the device histogram of one chunk (per-device rows summed)."""
+    counts, times = (np.asarray(h, np.float64) for h in histogram)
+    if counts.ndim == 2:  # one partial histogram per device
+        counts, times = counts.sum(axis=0), times.sum(axis=0)
+    return (counts, times) if total is None else (total[0] + counts, total[1] + times)

@@ -25,3 +25,10 @@ def progress_bar(total: int, description: str, enabled: bool = True, completed: 
     with Progress(*columns, transient=False) as bar:
         task = bar.add_task(description, total=total, completed=completed)
         yield lambda n: bar.advance(task, n)
+
+
+def console_note(message: str) -> None:
+    """Print a one-off note for the user above the progress bars (dimmed)."""
+    from rich.console import Console
+
+    Console(stderr=True).print(f"[dim]{message}[/]", soft_wrap=True)

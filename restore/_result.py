@@ -32,7 +32,7 @@ class SampleResult:
         self.__dict__.update(fields)
 
     @classmethod
-    def from_run(cls, *, sampler, observables: Observables, sums, histogram, draws, draw_weights, final_state, num_steps, finishing_steps, thin, weights, wall_time, interrupted) -> SampleResult:
+    def from_run(cls, *, sampler, observables: Observables, sums, histogram, draws, draw_weights, final_state, num_steps, finishing_steps, thin, weights, wall_time, interrupted, draws_note=None) -> SampleResult:
         to_np = lambda tree: jax.tree.map(np.asarray, tree)
         log_rate = getattr(sampler, "effective_log_rate", getattr(sampler, "log_rate", None))
         result = cls(
@@ -52,6 +52,7 @@ class SampleResult:
             weights=weights,
             wall_time=float(wall_time),
             interrupted=bool(interrupted),
+            draws_note=draws_note,
             log_rate=None if log_rate is None else float(log_rate),
             tour_length=getattr(sampler, "tour_length", None),
             pilot=getattr(sampler, "pilot", None),
@@ -278,6 +279,8 @@ class SampleResult:
             f"{self.sampler_name}: {self.num_lanes} lanes x {self.num_steps} steps in {self.wall_time:.2f} s"
             + (" (interrupted)" if self.interrupted else ""),
             f"  acceptance rate {self.acceptance_rate:.3f}, invalid evaluations {self.num_invalid}",
+            f"  stored draws: {self.draws.shape[0]} per lane, every {self.thin}th step"
+            + (f" ({self.draws_note})" if getattr(self, "draws_note", None) else ""),
         ]
         if self.has_tours and self.log_rate is not None:
             stats = self.tour_statistics()

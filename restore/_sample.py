@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 import time
@@ -12,23 +13,29 @@ from typing import Any, Literal, NamedTuple
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, PRNGKeyArray
 
 from ._accumulators import (
     LaneSums,
     completed_durations,
+    drain_histogram,
+    drain_sums,
     init_histogram,
     init_lane_sums,
+    restart_sums,
     update_histogram,
     update_lane_sums,
 )
 from ._checkpoint import CheckpointError, array_digest, key_fingerprint, load_checkpoint, save_checkpoint
 from ._observables import Observables
-from ._progress import progress_bar
+from ._progress import console_note, progress_bar
 from ._result import SampleResult
 from ._sharding import Devices, LaneSharding, lane_sharding, map_devices, map_lanes, put, to_host
 
 Weights = Literal["rao_blackwell", "time"]
+
+logger = logging.getLogger("restore")
 
 
 class _Carry(NamedTuple):
@@ -40,9 +47,9 @@ class _Carry(NamedTuple):
     step: Array
 
 
-def _lane_keys(key: PRNGKeyArray, num_lanes: int) -> Array:
+def _lane_keys(key: PRNGKeyArray, num_lanes: int, first_lane: int = 0) -> Array:
     """One key per lane, independent of how many lanes there are (lane `i` is reproducible)."""
-    return jax.vmap(lambda i: jax.random.fold_in(key, i))(jnp.arange(num_lanes))
+    return jax.vmap(lambda i: jax.random.fold_in(key, i))(first_lane + jnp.arange(num_lanes))
 
 
 @eqx.filter_jit
@@ -69,14 +76,14 @@ def _advance(
     lane_keys: Array,
     length: Array,
     finishing: Array,
-    thin: int,
+    thin: Array,
     rao_blackwell: bool,
     sharding: LaneSharding | None = None,
 ):
     """Run every lane for `length` steps, or (`finishing`) until each lane's open tour ends.
 
-    One compiled program serves every chunk length and both modes (both are traced), so
-    a run compiles its step function once. When finishing, no new tour is started:
+    One compiled program serves every chunk length, thinning and both modes (all are
+    traced), so a run compiles its step function once, and runs of other lengths reuse it. When finishing, no new tour is started:
     a lane whose tour has ended stops (its state and sums are frozen). Dropping the tours
     still open when the step budget runs out would bias the estimates towards short
     tours (long tours are the ones likely to straddle the end). Finishing them makes the
@@ -167,8 +174,25 @@ def _replicate(tree, sharding: LaneSharding):
     return eqx.combine(jax.tree.map(lambda x: put(x, sharding.replicated), arrays), rest)
 
 
+class _Run(NamedTuple):
+    """A run's progress: the device carry and the float64 host totals drained from it."""
+
+    carry: _Carry
+    sums: LaneSums | None
+    histogram: tuple | None
+
+
+@eqx.filter_jit
+def _restart(carry: _Carry, sharding: LaneSharding | None = None) -> _Carry:
+    """The carry after its sums and histogram have been drained to the host."""
+    restarted = carry._replace(sums=restart_sums(carry.sums), histogram=jax.tree.map(jnp.zeros_like, carry.histogram))
+    if sharding is not None:
+        restarted = jax.lax.with_sharding_constraint(restarted, _carry_shardings(restarted, sharding))
+    return restarted
+
+
 class _Saver:
-    """Saves a run's carry to its checkpoint file and loads it back (onto the devices of a sharded run)."""
+    """Saves a run's progress to its checkpoint file and loads it back (onto the devices of a sharded run)."""
 
     def __init__(self, path, fingerprint: dict, layout: _Carry | None):
         self.path, self.fingerprint, self.layout = path, fingerprint, layout
@@ -177,20 +201,22 @@ class _Saver:
     def seconds_since_save(self) -> float:
         return time.perf_counter() - self.last
 
-    def save(self, carry: _Carry, *, done: int, wall_time: float, finished=False, finishing_steps=0, unfinished=0):
+    def save(self, run: _Run, *, done: int, wall_time: float, finished=False, finishing_steps=0, unfinished=0):
         header = dict(self.fingerprint, done=int(done), wall_time=float(wall_time), finished=bool(finished))
         header.update(finishing_steps=int(finishing_steps), unfinished=int(unfinished))
-        save_checkpoint(self.path, to_host(carry) if self.layout is not None else carry, header)
+        save_checkpoint(self.path, to_host(run) if self.layout is not None else run, header)
         self.last = time.perf_counter()
 
-    def load(self, like: _Carry) -> tuple[_Carry, dict]:
-        carry, header = load_checkpoint(self.path, like, self.fingerprint)
+    def load(self, carry: _Carry) -> tuple[_Run, dict]:
+        host = to_host((carry.sums, carry.histogram))
+        like = _Run(carry, drain_sums(None, host[0]), drain_histogram(None, host[1]))
+        run, header = load_checkpoint(self.path, like, self.fingerprint)
         if self.layout is not None:
-            carry = jax.tree.map(put, carry, self.layout)
+            restored = jax.tree.map(put, run.carry, self.layout)
         else:
-            carry = jax.tree.map(jnp.asarray, carry)
+            restored = jax.tree.map(jnp.asarray, run.carry)
         self.last = time.perf_counter()
-        return carry, header
+        return run._replace(carry=restored), header
 
 
 def _thinning(num_steps: int, num_lanes: int, max_draws: int, thin: int | None) -> tuple[int, int]:
@@ -221,6 +247,7 @@ def sample(
     checkpoint_steps: int | None = None,
     checkpoint_seconds: float | None = 60.0,
     resume: bool = True,
+    first_lane: int = 0,
 ) -> SampleResult:
     """Run `num_lanes` independent lanes for `num_steps` steps each and stream estimates.
 
@@ -243,7 +270,10 @@ def sample(
         weights: `"rao_blackwell"` (holding times replaced by their means
             `1/(r + gamma)`, lower variance) or `"time"` (the sampled holding times).
         positions: optional `(num_lanes, d)` starting points.
-        max_draws: budget of stored draws over all lanes (thinning is chosen to fit).
+        max_draws: budget of stored draws over all lanes: memory for draws is fixed by
+            it, whatever the number of steps. When the run makes more states, every
+            `thin`-th step is stored, with a message (logged, shown with the progress
+            bar, and in `result.summary()`); `0` stores none.
         thin: store every `thin`-th state (overrides the budget's choice).
         progress: show a progress bar (updated between jitted chunks, so it costs nothing
             inside the loop).
@@ -282,11 +312,19 @@ def sample(
             finished checkpoint returns its result at once. A checkpoint of another run
             (other key, sizes, sampler parameters, observables or devices) is refused with
             a `CheckpointError` that says what differs.
-        checkpoint_steps: save every this many steps (chunks are cut to land on them).
+        checkpoint_steps: save at the end of the first chunk at or after every
+            `checkpoint_steps` steps (chunk boundaries do not move, so a run computes
+            the same numbers with or without checkpoints; raise `num_chunks` for finer
+            saves).
         checkpoint_seconds: save when this many seconds have passed since the last save
             (checked between chunks); `None` for step-based saves only.
         resume: continue from an existing `checkpoint` file (default); `False` starts
             afresh and overwrites it.
+        first_lane: index of this run's first lane. Lane `first_lane + i` gets the same
+            keys in every run, so one large run can be split into parts (e.g. over
+            machines) with `first_lane=0, n, 2n, ...` and the parts joined with
+            `restore.merge_results`: the merged per-lane sums are bit-identical to those
+            of one run with all the lanes.
 
     Returns:
         A `SampleResult` with estimates, standard errors and diagnostics. Interrupting
@@ -296,6 +334,9 @@ def sample(
     for name, value in (("num_lanes", num_lanes), ("num_steps", num_steps), ("num_chunks", num_chunks)):
         if isinstance(value, bool) or int(value) != value or value < 1:
             raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    if isinstance(first_lane, bool) or int(first_lane) != first_lane or first_lane < 0:
+        raise ValueError(f"first_lane must be a non-negative integer, got {first_lane!r}")
+    first_lane = int(first_lane)
     if weights not in ("rao_blackwell", "time"):
         raise ValueError(f"weights must be 'rao_blackwell' or 'time', got {weights!r}")
     num_lanes, num_steps = int(num_lanes), int(num_steps)
@@ -326,7 +367,7 @@ def sample(
             raise ValueError(f"positions must have shape (num_lanes, d) = ({num_lanes}, {dim}), got {positions.shape}")
         if not bool(jnp.all(jnp.isfinite(positions))):
             raise ValueError("positions must be finite")
-    init_keys = _lane_keys(key_init, num_lanes)
+    init_keys = _lane_keys(key_init, num_lanes, first_lane)
     if sharding is not None:
         sampler = _replicate(sampler, sharding)
         init_keys = put(init_keys, sharding.lanes)
@@ -335,7 +376,19 @@ def sample(
     dtype = states.logdensity.dtype
     observe = Observables(observables, dim, dtype)
 
+    thin_given = thin
     thin, stored = _thinning(num_steps, num_lanes, max_draws, thin)
+    draws_note = None
+    if thin_given is None and thin > 1 and stored > 0:
+        draws_note = (
+            f"thinned to the draws budget max_draws={max_draws:,}: {num_lanes:,} lanes x {num_steps:,} steps "
+            f"make {num_lanes * num_steps:,} states, so every {thin}th step of each lane is stored "
+            f"({stored * num_lanes:,} draws, {stored * num_lanes * dim * jnp.dtype(dtype).itemsize / 2**20:.3g} MiB); "
+            "raise max_draws or set thin to keep more"
+        )
+        logger.info(draws_note)
+        if progress:
+            console_note(draws_note)
 
     def start_carry(states):
         histogram = init_histogram(dtype)
@@ -350,7 +403,7 @@ def sample(
             step=jnp.zeros((), jnp.int32),
         )
 
-    lane_keys = _lane_keys(key_run, num_lanes)
+    lane_keys = _lane_keys(key_run, num_lanes, first_lane)
     layout = None
     if sharding is None:
         carry = start_carry(states)
@@ -362,6 +415,7 @@ def sample(
     rao_blackwell = weights == "rao_blackwell"
 
     saver = None
+    run = _Run(carry, None, None)
     done, finishing_steps, unfinished, finished, spent = 0, 0, 0, False, 0.0
     if checkpoint is not None:
         fingerprint = {
@@ -369,7 +423,9 @@ def sample(
             "sampler": type(sampler).__name__,
             "sampler_arrays": array_digest(sampler),
             "num_lanes": num_lanes,
+            "first_lane": first_lane,
             "num_steps": num_steps,
+            "num_chunks": num_chunks,
             "dim": dim,
             "dtype": str(dtype),
             "observables": [[slot.name, list(slot.shape)] for slot in observe.slots],
@@ -382,55 +438,59 @@ def sample(
         }
         saver = _Saver(checkpoint, fingerprint, layout)
         if resume and os.path.exists(checkpoint):
-            carry, header = saver.load(carry)
+            run, header = saver.load(carry)
             done, spent, finished = header["done"], header["wall_time"], header["finished"]
             finishing_steps, unfinished = header["finishing_steps"], header["unfinished"]
-            if int(carry.step) != done + finishing_steps:
-                raise CheckpointError(f"checkpoint {checkpoint} is inconsistent: step {int(carry.step)}, header {done}")
+            if int(run.carry.step) != done + finishing_steps:
+                raise CheckpointError(f"checkpoint {checkpoint} is inconsistent: step {int(run.carry.step)}, header {done}")
+
+    def advance_and_drain(run: _Run, length, finishing) -> tuple[_Run, Array]:
+        """Advance every lane, then move the chunk's sums to the float64 host totals."""
+        args = (lane_keys, jnp.asarray(length, jnp.int32), jnp.asarray(finishing), jnp.asarray(thin, jnp.int32), rao_blackwell, sharding)
+        advanced, steps_taken = _advance(sampler, observe, run.carry, *args)
+        host_sums, host_histogram = to_host((advanced.sums, advanced.histogram))  # waits for the chunk
+        sums, histogram = drain_sums(run.sums, host_sums), drain_histogram(run.histogram, host_histogram)
+        return _Run(_restart(advanced, sharding), sums, histogram), steps_taken
 
     start, interrupted = time.perf_counter(), False
     elapsed = lambda: spent + time.perf_counter() - start  # noqa: E731
     label = f"{type(sampler).__name__}: {num_lanes} lanes"
     if sharding is not None:
         label += f" on {sharding.num_devices} devices"
-    with progress_bar(num_steps, label, enabled=progress, completed=done) as advance:
+    next_save = math.inf if checkpoint_steps is None else (done // checkpoint_steps + 1) * checkpoint_steps
+    with progress_bar(num_steps, label, enabled=progress, completed=done) as show:
         try:
             while done < num_steps:
                 length = min(chunk, num_steps - done)
-                if saver is not None and checkpoint_steps is not None:  # land on the next checkpoint step
-                    length = min(length, checkpoint_steps - done % checkpoint_steps)
-                steps = jnp.asarray(length, jnp.int32)
-                finishing = jnp.asarray(False)
-                advanced, _ = _advance(sampler, observe, carry, lane_keys, steps, finishing, thin, rao_blackwell, sharding)
-                carry = jax.block_until_ready(advanced)
-                done += length
-                advance(length)
+                run = jax.block_until_ready(advance_and_drain(run, length, False)[0])  # one assignment: all or nothing
+                done = int(run.carry.step)
+                show(length)
                 if saver is not None and (
                     done == num_steps
-                    or (checkpoint_steps is not None and done % checkpoint_steps == 0)
+                    or done >= next_save
                     or (checkpoint_seconds is not None and saver.seconds_since_save() >= checkpoint_seconds)
                 ):
-                    saver.save(carry, done=done, wall_time=elapsed())
+                    saver.save(run, done=done, wall_time=elapsed())
+                    next_save = math.inf if checkpoint_steps is None else (done // checkpoint_steps + 1) * checkpoint_steps
         except KeyboardInterrupt:
             interrupted = True
-            done = int(carry.step)  # the last chunk that finished (the carry is replaced only once it has)
-            if saver is not None:
-                saver.save(carry, done=done, wall_time=elapsed())
+            done = int(run.carry.step)  # the last chunk that finished
+            if saver is not None and run.sums is not None:
+                saver.save(run, done=done, wall_time=elapsed())
             warnings.warn(f"interrupted after {done} of {num_steps} steps; returning the partial result", stacklevel=2)
+    if run.sums is None:  # interrupted before the first chunk finished: nothing to report yet
+        run = _Run(run.carry, drain_sums(None, to_host(run.carry.sums)), drain_histogram(None, to_host(run.carry.histogram)))
     if getattr(sampler, "has_tours", False) and not interrupted and finish_tours and not finished:
-        budget = jnp.asarray(num_steps, jnp.int32)
         try:
-            ended, extra = _advance(
-                sampler, observe, carry, lane_keys, budget, jnp.asarray(True), thin, rao_blackwell, sharding
-            )
-            extra, still_open = int(extra), int(jnp.sum(_active(ended)))
-            carry, finishing_steps, unfinished = ended, extra, still_open
+            ended, extra = advance_and_drain(run, num_steps, True)
+            extra, still_open = int(extra), int(np.sum(_active(ended.carry)))
+            run, finishing_steps, unfinished = ended, extra, still_open
         except KeyboardInterrupt:  # keep the budget's result; its open tours are dropped
             interrupted = True
             warnings.warn("interrupted while finishing the open tours; returning the result without them", stacklevel=2)
     if saver is not None and not interrupted and not finished:
         saver.save(
-            carry, done=done, wall_time=elapsed(), finished=True, finishing_steps=finishing_steps, unfinished=unfinished
+            run, done=done, wall_time=elapsed(), finished=True, finishing_steps=finishing_steps, unfinished=unfinished
         )
     if unfinished:
         warnings.warn(
@@ -440,15 +500,12 @@ def sample(
             stacklevel=2,
         )
     wall_time = elapsed()
-    if sharding is not None:
-        carry = to_host(carry)  # numpy, gathered over devices (and processes)
-        carry = carry._replace(histogram=tuple(h.sum(axis=0) for h in carry.histogram))
-
+    carry = to_host(run.carry) if sharding is not None else run.carry  # numpy, gathered over devices (and processes)
     return SampleResult.from_run(
         sampler=sampler,
         observables=observe,
-        sums=carry.sums,
-        histogram=carry.histogram,
+        sums=run.sums,
+        histogram=run.histogram,
         draws=carry.draws[: min(stored, math.ceil(done / thin))],
         draw_weights=carry.draw_weights[: min(stored, math.ceil(done / thin))],
         final_state=carry.states,
@@ -458,4 +515,5 @@ def sample(
         weights=weights,
         wall_time=wall_time,
         interrupted=interrupted,
+        draws_note=draws_note,
     )

@@ -114,10 +114,10 @@ def test_ctrl_c_saves_the_partial_run(reference, tmp_path, monkeypatch):
         return original(*args, **kwargs)
 
     monkeypatch.setattr(sample_module, "_advance", interrupted_advance)
-    with pytest.warns(UserWarning, match="interrupted after 500 of 8000 steps"):
+    with pytest.warns(UserWarning, match="interrupted after 640 of 8000 steps"):
         partial = child.run(tmp_path / "run.ckpt")
-    assert partial.interrupted and partial.num_steps == 500
-    assert read_header(tmp_path / "run.ckpt")["done"] == 500
+    assert partial.interrupted and partial.num_steps == 640
+    assert read_header(tmp_path / "run.ckpt")["done"] == 640
     monkeypatch.setattr(sample_module, "_advance", original)
     assert_identical(child.arrays(child.run(tmp_path / "run.ckpt")), reference)
 

@@ -52,7 +52,8 @@ def test_same_key_same_result_and_lanes_do_not_depend_on_the_lane_count():
     a = restore.sample(sampler, jax.random.key(5), num_lanes=8, num_steps=200, progress=False, num_chunks=3)
     b = restore.sample(sampler, jax.random.key(5), num_lanes=8, num_steps=200, progress=False, num_chunks=7)
     c = restore.sample(sampler, jax.random.key(5), num_lanes=4, num_steps=200, progress=False)
-    np.testing.assert_array_equal(a.sums.sum_f, b.sums.sum_f)
+    np.testing.assert_allclose(a.sums.sum_f, b.sums.sum_f, rtol=1e-13)  # chunk totals added in another order
+    np.testing.assert_array_equal(a.draws, b.draws)
     np.testing.assert_array_equal(a.draws[:, :4], c.draws)
 
 

@@ -41,11 +41,12 @@ mode, out = sys.argv[1], sys.argv[2]
 assert len(jax.devices()) == 4, jax.devices()
 report = {}
 
-# Record how the carry is laid out just before it is gathered to the host.
+# Record how the per-lane sums are laid out when they are gathered to the host (after every chunk).
 gather = sample_module.to_host
-def spy(carry):
-    report.setdefault("shards", []).append([s.data.shape[0] for s in carry.sums.sum_t.addressable_shards])
-    return gather(carry)
+def spy(tree):
+    sums = tree.carry.sums if hasattr(tree, "carry") else tree.sums if hasattr(tree, "sums") else tree[0]
+    report.setdefault("shards", []).append([s.data.shape[0] for s in sums.sum_t.addressable_shards])
+    return gather(tree)
 sample_module.to_host = spy
 
 if mode == "sharded":
@@ -81,6 +82,26 @@ for name, (sampler, devices) in runs.items():
         arrays[f"{name}/estimate/{obs}"] = np.stack([est.value, est.standard_error])
     arrays[f"{name}/log_z"] = np.asarray(result.normalising_constant().value)
     report[f"{name}/finishing_steps"] = result.finishing_steps
+if mode == "sharded":  # interrupted after two chunks, then resumed from the checkpoint onto the devices
+    advance, calls = sample_module._advance, []
+    def interrupting(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return advance(*args, **kwargs)
+    kwargs = dict(num_lanes=8, num_steps=200, progress=False, devices=4, checkpoint=out + ".ckpt")
+    sample_module._advance = interrupting
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        partial = restore.sample(jump, jax.random.key(7), **kwargs)
+    sample_module._advance = advance
+    report["partial"] = [partial.interrupted, partial.num_steps]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        resumed = restore.sample(jump, jax.random.key(7), **kwargs)
+    for field in resumed.sums._fields:
+        arrays[f"resumed/sums/{field}"] = getattr(resumed.sums, field)
+    arrays["resumed/draws"] = resumed.draws
 np.savez(out + ".npz", **arrays)
 with open(out + ".json", "w") as f:
     json.dump(report, f)
@@ -118,7 +139,7 @@ def runs(tmp_path_factory):
 
 def test_sharded_lanes_match_one_device_bit_for_bit(runs):
     single, sharded = runs["single"][0], runs["sharded"][0]
-    assert single.keys() == sharded.keys()
+    assert set(single) == {name for name in sharded if not name.startswith("resumed/")}
     for name in single:
         if name.endswith("histogram_times"):  # partial histograms are summed in another order
             np.testing.assert_allclose(sharded[name], single[name], rtol=1e-12, err_msg=name)
@@ -128,9 +149,16 @@ def test_sharded_lanes_match_one_device_bit_for_bit(runs):
     for name in ("jump", "brownian"):
         assert report[f"{name}/finishing_steps"] == runs["single"][1][f"{name}/finishing_steps"]
         assert single[f"{name}/histogram_counts"].sum() == single[f"{name}/sums/num_tours"].sum() > 20
-    # The lanes were split 2 per device before being gathered (the one-device path gathers nothing).
-    assert report["shards"] == [[2, 2, 2, 2]] * 2
-    assert "shards" not in runs["single"][1]
+    # The lanes stay split 2 per device through the run: every chunk's sums are gathered from 4 shards.
+    assert len(report["shards"]) > 2 and all(shards == [2, 2, 2, 2] for shards in report["shards"])
+    assert all(shards == [8] for shards in runs["single"][1]["shards"])
+
+
+def test_sharded_run_resumes_from_its_checkpoint_bit_for_bit(runs):
+    arrays, report = runs["sharded"]
+    assert report["partial"] == [True, 8]  # two chunks of 4 steps, then Ctrl-C
+    for name in [n for n in arrays if n.startswith("resumed/")]:
+        np.testing.assert_array_equal(arrays[name], arrays[name.replace("resumed/", "jump/")], err_msg=name)
 
 
 def test_sharded_estimates_are_right(runs):
