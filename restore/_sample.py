@@ -168,6 +168,14 @@ def _carry_shardings(carry: _Carry, sharding: LaneSharding) -> _Carry:
     )
 
 
+def _without_pilot(sampler):
+    """The sampler without its pilot report, which is a static field: left in, every new key's
+    pilot would make a new sampler type to `jit` and recompile the whole loop."""
+    if getattr(sampler, "pilot", None) is not None and hasattr(sampler, "_replace"):
+        return sampler._replace(pilot=None)
+    return sampler
+
+
 def _replicate(tree, sharding: LaneSharding):
     """Every array leaf of `tree` (e.g. a sampler's parameters) replicated over the mesh."""
     arrays, rest = eqx.partition(tree, eqx.is_array)
@@ -360,6 +368,7 @@ def sample(
     key_pilot, key_init, key_run = jax.random.split(key, 3)
     if getattr(sampler, "log_rate", 0.0) is None:
         sampler = sampler.calibrate(key_pilot)
+    calibrated, sampler = sampler, _without_pilot(sampler)
     dim = sampler.dim
     if positions is not None:
         positions = jnp.asarray(positions)
@@ -502,7 +511,7 @@ def sample(
     wall_time = elapsed()
     carry = to_host(run.carry) if sharding is not None else run.carry  # numpy, gathered over devices (and processes)
     return SampleResult.from_run(
-        sampler=sampler,
+        sampler=calibrated,
         observables=observe,
         sums=run.sums,
         histogram=run.histogram,

@@ -26,7 +26,7 @@ def logdensity(x):
 
 def sampler():
     regeneration = restore.regeneration.Gaussian(jnp.zeros(2), 9.0 * jnp.eye(2))
-    return restore.JumpRestore(logdensity, restore.local.RandomWalk(0.8), regeneration, tour_length=4.0)
+    return restore.JumpRestore(logdensity, restore.local.RandomWalk(0.8), regeneration, log_rate=0.5)
 
 
 def run(checkpoint=None, **kwargs):
