@@ -16,7 +16,7 @@ import jax.numpy as jnp
 
 import restore
 
-LANES, MAX_DRAWS = 2, 1_000
+LANES = 2
 
 
 def peak_mib() -> float:
@@ -29,7 +29,7 @@ def main(num_steps: int) -> dict:
         log_rate=0.0,
     )
     run = lambda n: restore.sample(  # noqa: E731
-        sampler, jax.random.key(0), num_lanes=LANES, num_steps=n, max_draws=MAX_DRAWS, progress=False
+        sampler, jax.random.key(0), num_lanes=LANES, num_steps=n, max_draws=0, progress=False
     )
     short = run(10_000)
     before = peak_mib()
@@ -39,10 +39,7 @@ def main(num_steps: int) -> dict:
         "peak_after_short_mib": before,
         "peak_after_long_mib": peak_mib(),
         "seconds": time.perf_counter() - start,
-        "short_draws": list(short.draws.shape),
-        "long_draws": list(long.draws.shape),
-        "long_thin": long.thin,
-        "draws_note": long.draws_note,
+        "draws": [list(short.draws.shape), list(long.draws.shape)],
         "num_steps": long.num_steps,
         "mean_x2": float(long.estimate("x**2").value[0]),
     }
