@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._estimates import Estimate
+from ._io import save_figure
 from ._jump_restore import JumpRestore
 from ._mixture_mh import MixtureMH
 from ._sample import sample
@@ -102,6 +103,8 @@ def plot_demo(outcome: DemoOutcome, path: Path) -> Path:
     ax.legend()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    try:
+        save_figure(fig, path, dpi=120)
+    finally:
+        plt.close(fig)
     return path

@@ -22,8 +22,9 @@ class TourStatistics(NamedTuple):
         num_tours: complete tours over all lanes.
         mean_duration: mean tour duration (in local-move time units).
         mean_duration_se: its standard error.
-        expected_duration: `1 / c`: the requested `tour_length`, or `Z_hat / c_tilde`
-            with the run's importance estimate of `Z` when the raw `log_rate` was given.
+        expected_duration: `1 / c = Z_hat / c_tilde`, with the run's importance estimate
+            of `Z`. For a sampler calibrated from a `tour_length`, this is the requested
+            length corrected for the pilot's error in `Z`.
         effective_num_tours: `(sum T)^2 / sum T^2`, how many equally long tours carry the
             same information.
         longest_share: share of the total tour time held by the longest 1% of tours
@@ -81,7 +82,9 @@ def tour_statistics(
     var = max(T2 / n - mean**2, 0.0) * n / max(n - 1, 1)
     eff = T**2 / T2 if T2 > 0 else 0.0
     share = longest_share(*histogram)
-    heavy = n >= 20 and (share > LONGEST_SHARE_LIMIT or eff < EFFECTIVE_SHARE_LIMIT * n)
+    # With underflowed durations (T or T^2 summing to zero) the tail statistics mean nothing:
+    # estimates refuse such runs with a clear error, so no heavy-tail warning is raised here.
+    heavy = n >= 20 and T2 > 0 and (share > LONGEST_SHARE_LIMIT or eff < EFFECTIVE_SHARE_LIMIT * n)
     return TourStatistics(
         num_tours=n,
         mean_duration=mean,

@@ -26,6 +26,29 @@ class Estimate(NamedTuple):
         return f"{type(self).__name__}(value={value}, standard_error={error})"
 
 
+def check_total_time(total: float, total_sq: float, what: str) -> None:
+    """Refuse ratio estimates whose time weights underflowed to zero (a silent `0 / 0` or a zero
+    standard error otherwise).
+
+    Holding times `1 / (r + gamma)` underflow when the kill rate is astronomically large
+    (a huge `log_rate`, or a tiny `tour_length`): then every weight is zero, or their
+    squares are, and no estimate or standard error can be formed.
+    """
+    if not total > 0:
+        raise ValueError(
+            f"the {what} hold no time: every holding time 1 / (r + gamma) is zero, so the kill rate was "
+            "infinite or far too large at every visited state (the log density was -inf, NaN or +inf wherever "
+            "the tours went, or log_rate is so large that the holding times underflow); check the log density, "
+            "or lower log_rate (lengthen tour_length)"
+        )
+    if not total_sq > 0:
+        raise ValueError(
+            f"the durations of the {what} are so short that their squares underflow, so no standard error "
+            "can be computed: the holding times 1 / (r + gamma) are tiny because the kill rate gamma (log_rate) "
+            "or the local_rate r is far too large; lower log_rate (lengthen tour_length) or local_rate"
+        )
+
+
 def tour_ratio(sum_f, sum_f2, sum_ft, sum_t, sum_t2, num_tours) -> Estimate:
     """Regenerative ratio estimator `sum F / sum T` over i.i.d. tours.
 
@@ -40,6 +63,7 @@ def tour_ratio(sum_f, sum_f2, sum_ft, sum_t, sum_t2, num_tours) -> Estimate:
         )
     F, F2, FT = (np.sum(np.asarray(a, np.float64), axis=0) for a in (sum_f, sum_f2, sum_ft))
     T, T2 = float(np.sum(np.asarray(sum_t, np.float64))), float(np.sum(np.asarray(sum_t2, np.float64)))
+    check_total_time(T, T2, "tours")
     value = F / T
     ss = np.maximum(F2 - 2.0 * value * FT + value**2 * T2, 0.0)
     return Estimate(value, np.sqrt(ss * n / (n - 1.0)) / T)
@@ -53,6 +77,7 @@ def lane_ratio(all_f, all_t) -> Estimate:
     if lanes < 2:
         raise ValueError("lane-based standard errors need at least 2 lanes")
     T = t.sum()
+    check_total_time(T, float(np.sum(t**2)), "lanes")
     value = f.sum(axis=0) / T
     resid = f - value * t.reshape((-1,) + (1,) * (f.ndim - 1))
     return Estimate(value, np.sqrt(np.sum(resid**2, axis=0) * lanes / (lanes - 1.0)) / T)
@@ -64,6 +89,12 @@ def log_mean_exp(log_sum: np.ndarray, log_sum2: np.ndarray, count: float) -> tup
         raise ValueError("need at least 2 importance draws")
     ls = np.logaddexp.reduce(np.asarray(log_sum, np.float64))
     ls2 = np.logaddexp.reduce(np.asarray(log_sum2, np.float64))
+    if ls == -np.inf:
+        raise ValueError(
+            f"all {int(count)} importance weights p(y) / q(y) at the tour starts are zero: no tour started where "
+            "the target density is positive (the regeneration distribution misses the target's support, or "
+            "the log density was -inf, NaN or +inf at every start), so log Z cannot be estimated"
+        )
     log_mean = ls - math.log(count)
     # relative variance of the mean: (E w^2 / (E w)^2 - 1) / n
     rel = math.exp(ls2 - math.log(count) - 2.0 * log_mean) - 1.0

@@ -8,12 +8,44 @@ from collections.abc import Callable
 from pathlib import Path
 
 
+def _file_mode(path: Path) -> int:
+    """The permission bits a plain `open(path, "w")` would leave: the old file's, else 0o666 less the umask."""
+    try:
+        return path.stat().st_mode & 0o7777
+    except OSError:
+        umask = os.umask(0)
+        os.umask(umask)
+        return 0o666 & ~umask
+
+
+def write_text(path: str | os.PathLike, text: str, newline: str | None = None) -> Path:
+    """Write `text` to `path` atomically (UTF-8)."""
+
+    def write(tmp: Path) -> None:
+        with open(tmp, "w", encoding="utf-8", newline=newline) as handle:
+            handle.write(text)
+
+    return atomic_write(path, write)
+
+
+def save_figure(fig, path: str | os.PathLike, **kwargs) -> Path:
+    """`fig.savefig` to `path` atomically, in the format named by its suffix (e.g. `.png`)."""
+    path = Path(path)
+    fmt = kwargs.pop("format", path.suffix.lstrip(".").lower() or "png")
+    return atomic_write(path, lambda tmp: fig.savefig(tmp, format=fmt, **kwargs))
+
+
 def atomic_write(path: str | os.PathLike, write: Callable[[Path], object]) -> Path:
     """Call `write(tmp_path)` on a temporary file beside `path`, flush it to disk, then rename it to `path`.
 
     The rename is atomic on POSIX file systems, so `path` holds either its old content or
     the new one, never a mixture. If `write` raises (or the process is interrupted), the
-    temporary file is removed and `path` is left as it was.
+    temporary file is removed and `path` is left as it was. The new file gets the mode of
+    the file it replaces, or the usual `0o666` less the umask for a new file (not the
+    private `0o600` of a temporary file).
+
+    `write` must write to exactly the path it is given: NumPy's `np.save`/`np.savez` append
+    `.npy`/`.npz` to a name that does not end in it, so give them an open file handle.
 
     Raises:
         FileNotFoundError: if the folder of `path` does not exist.
@@ -28,6 +60,7 @@ def atomic_write(path: str | os.PathLike, write: Callable[[Path], object]) -> Pa
         write(Path(tmp))
         with open(tmp, "rb+") as handle:  # the data reach the disk before the rename makes them visible
             os.fsync(handle.fileno())
+        os.chmod(tmp, _file_mode(path))
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

@@ -14,14 +14,14 @@ from .local import AbstractLocalKernel
 from .regeneration import AbstractRegeneration
 from .transfer import Independent
 
-#: The state of a jump-Restore lane (the general `RestoreState`).
 JumpRestoreState = RestoreState
-#: What one jump-Restore step did (the general `RestoreInfo`).
+"""The state of a jump-Restore lane (the general `RestoreState`)."""
 JumpRestoreInfo = RestoreInfo
+"""What one jump-Restore step did (the general `RestoreInfo`)."""
 
 
 class JumpRestore(AbstractRestore):
-    """Jump Restore sampler (Algorithm 7.1 of the seed paper), one lane at a time.
+    """Jump Restore sampler (Algorithm 7.1 of the jump Restore paper), one lane at a time.
 
     The general `Restore` process with one phase: local dynamics `Jump(local, local_rate)`
     (the Markov kernel `local` embedded in continuous time with exponential holding
@@ -37,9 +37,15 @@ class JumpRestore(AbstractRestore):
     sampling pilot estimate of the normalising constant `Z`; `restore.sample` does it
     for you and reports the pilot.
 
+    The run's floating dtype is that of the regeneration distribution's draws
+    (`sampler.dtype`): starting positions, proposals and the log density's values are cast
+    to it, so a float32 regeneration gives a float32 run even with `jax_enable_x64` on.
+
     Arguments:
-        logdensity: unnormalised log density of one point `(d,)`, returning a scalar.
-            NaN or `+inf` values are treated as zero density and counted.
+        logdensity: unnormalised log density of one point `(d,)`, returning a real
+            scalar (checked once at construction; an exception it raises is re-raised as a
+            `ValueError` naming it). NaN or `+inf` values are treated as zero density and
+            counted. Gradient-based kernels (MALA, HMC) also need `jax.grad` of it.
         local: the local kernel, e.g. `restore.local.RandomWalk(0.5)`.
         regeneration: the regeneration distribution `nu`, e.g.
             `restore.regeneration.laplace_mixture(logdensity, starts)`.
@@ -66,6 +72,8 @@ class JumpRestore(AbstractRestore):
             raise ValueError(f"log_rate must be a scalar, got shape {log_rate.shape}")
         from ._rate import check_positive
 
+        if local_rate is None:
+            raise TypeError("local_rate must be a positive number (the rate r of local moves), got None")
         dynamics = Jump(local, check_positive(local_rate, "local_rate"))
         self._setup(logdensity, dynamics, Independent(regeneration), log_rate, tour_length, None, None, pilot_size, pilot)
 

@@ -63,7 +63,13 @@ class MixtureMH(eqx.Module):
     is_regenerative: ClassVar[bool] = False
 
     def __init__(self, logdensity, local, regeneration, large_step_probability: float = 0.1):
-        q = float(large_step_probability)
+        message = f"large_step_probability must be a number in [0, 1], got {large_step_probability!r}"
+        if isinstance(large_step_probability, (bool, str, bytes)) or large_step_probability is None:
+            raise TypeError(message)
+        try:
+            q = float(large_step_probability)
+        except (TypeError, ValueError) as err:
+            raise TypeError(message) from err
         if not 0.0 <= q <= 1.0:
             raise ValueError(f"large_step_probability must be in [0, 1], got {large_step_probability!r}")
         check_parts(logdensity, local, regeneration)
@@ -76,14 +82,22 @@ class MixtureMH(eqx.Module):
     def dim(self) -> int:
         return self.regeneration.dim
 
+    @property
+    def dtype(self) -> jnp.dtype:
+        """The floating dtype of the chain: that of the regeneration distribution's draws (see
+        `JumpRestore.dtype`)."""
+        return jax.eval_shape(self.regeneration.sample, jax.random.key(0)).dtype
+
     def init(self, key: PRNGKeyArray, position: Array | None = None) -> MixtureMHState:
         """Start a chain at `position`, or at a draw of `nu` (the same start information as Restore)."""
         if position is None:
             position = self.regeneration.sample(key)
         else:
             position = check_position(position, self.dim)
+        position = position.astype(self.dtype)
         point, _ = evaluate(self.logdensity, position, self.local.uses_gradient)
-        return MixtureMHState(point.position, point.logdensity, point.grad, self.regeneration.log_prob(position))
+        log_u = self.regeneration.log_prob(position).astype(position.dtype)
+        return MixtureMHState(point.position, point.logdensity, point.grad, log_u)
 
     def step(self, key: PRNGKeyArray, state: MixtureMHState) -> tuple[MixtureMHState, MixtureMHInfo]:
         """One MH step: a large step with probability `q`, else a local move."""
@@ -93,9 +107,10 @@ class MixtureMH(eqx.Module):
 
         point = Point(state.position, state.logdensity, state.logdensity_grad)
         candidate, aux = self.local.propose(k_propose, point, self.logdensity)
+        candidate = candidate.astype(state.position.dtype)
         fresh = self.regeneration.sample(k_regen).astype(candidate.dtype)
         evaluated, invalid = evaluate(self.logdensity, jnp.where(large, fresh, candidate), self.local.uses_gradient)
-        log_u_new = self.regeneration.log_prob(evaluated.position)
+        log_u_new = self.regeneration.log_prob(evaluated.position).astype(dtype)
 
         local_point, local_info = self.local.accept(k_accept, point, evaluated, aux)
         log_ratio = evaluated.logdensity - state.logdensity + state.log_regeneration_density - log_u_new
@@ -110,7 +125,9 @@ class MixtureMH(eqx.Module):
             expected_holding_time=one,
             regenerated=jnp.zeros((), bool),
             accepted=accepted,
-            acceptance_probability=jnp.where(large, global_info.acceptance_probability, local_info.acceptance_probability),
+            acceptance_probability=jnp.where(
+                large, global_info.acceptance_probability, local_info.acceptance_probability
+            ).astype(dtype),
             invalid=invalid,
             large_step=large,
         )

@@ -33,6 +33,9 @@ def evaluate(
     tour started there is killed at once with weight zero) and a zero gradient, and the
     returned flag is true so that callers can count it. No NaN travels further.
 
+    The value and gradient are cast to the dtype of `position` (the sampler's dtype), so a
+    log density that computes in another precision cannot change the dtypes of a state.
+
     Arguments:
         logdensity_fn: log density of one point of shape `(d,)`, returning a scalar.
         position: the point.
@@ -41,13 +44,15 @@ def evaluate(
     Returns:
         The evaluated `Point` and a boolean flag that is true when the evaluation was invalid.
     """
+    dtype = position.dtype
     if with_grad:
         logp, grad = jax.value_and_grad(logdensity_fn)(position)
+        logp, grad = jnp.asarray(logp).astype(dtype), grad.astype(dtype)
         bad = jnp.isnan(logp) | (logp == jnp.inf) | ~jnp.all(jnp.isfinite(grad))
         bad = bad & ~(logp == -jnp.inf)
         grad = jnp.where(jnp.isfinite(logp) & ~bad, grad, jnp.zeros_like(grad))
     else:
-        logp = logdensity_fn(position)
+        logp = jnp.asarray(logdensity_fn(position)).astype(dtype)
         bad = jnp.isnan(logp) | (logp == jnp.inf)
         grad = None
     logp = jnp.where(bad, -jnp.inf, logp)

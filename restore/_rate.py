@@ -6,6 +6,7 @@ import math
 from collections.abc import Callable
 from typing import NamedTuple
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -51,6 +52,15 @@ class PilotEstimate(NamedTuple):
     zero_fraction: float
 
 
+@eqx.filter_jit
+def _pilot_terms(logdensity_fn, regeneration, draws):
+    """`log p` and `log u` at the pilot draws (one compiled program per log density and
+    regeneration structure, reused by later calibrations)."""
+    log_p = jax.vmap(logdensity_fn)(draws)
+    log_u = jax.vmap(regeneration.log_prob)(draws)
+    return log_p, log_u
+
+
 def pilot_log_z(
     key: PRNGKeyArray,
     logdensity_fn: Callable[[Array], Array],
@@ -59,14 +69,17 @@ def pilot_log_z(
 ) -> PilotEstimate:
     """Estimate `log Z` by importance sampling from the regeneration distribution."""
     draws = regeneration.sample(key, (num_draws,))
-    log_w = jax.jit(jax.vmap(lambda y: logdensity_fn(y) - regeneration.log_prob(y)))(draws)
-    log_w = np.asarray(log_w, dtype=np.float64)
+    log_p, log_u = _pilot_terms(logdensity_fn, regeneration, draws)
+    log_p, log_u = np.asarray(log_p, dtype=np.float64), np.asarray(log_u, dtype=np.float64)
+    invalid = np.isnan(log_p) | (log_p == np.inf)  # treated as zero density, as in the run
+    log_w = np.where(invalid, -np.inf, log_p - log_u)
     log_w = np.where(np.isnan(log_w), -np.inf, log_w)
     finite = np.isfinite(log_w)
     if not finite.any():
+        detail = f" (the log density was NaN or +inf at {int(invalid.sum())} of them)" if invalid.any() else ""
         raise ValueError(
             f"none of {num_draws} draws of the regeneration distribution has positive target "
-            "density: the regeneration distribution misses the target's support"
+            f"density{detail}: the regeneration distribution misses the target's support"
         )
     top = log_w[finite].max()
     w = np.where(finite, np.exp(log_w - top), 0.0)
@@ -82,10 +95,24 @@ def pilot_log_z(
 
 
 def check_positive(value: float | None, name: str) -> float | None:
-    """Reject non-positive, NaN or infinite rates and lengths with a clear message."""
+    """Reject non-positive, NaN or infinite rates and lengths with a clear message.
+
+    The value must be one real number (a Python or NumPy scalar, or a 0-d array); booleans,
+    strings and arrays with more than one entry are refused with a message naming `name`.
+    """
     if value is None:
         return None
-    value = float(value)
+    if isinstance(value, (bool, np.bool_, str, bytes)):
+        raise TypeError(f"{name} must be a positive number, got {value!r}")
+    try:
+        arr = np.asarray(value)
+    except Exception as err:  # e.g. a traced value: these are static settings
+        raise TypeError(f"{name} must be a concrete positive number, got {type(value).__name__}") from err
+    if arr.dtype.kind not in "iuf":
+        raise TypeError(f"{name} must be a positive number, got {value!r}")
+    if arr.ndim != 0:
+        raise ValueError(f"{name} must be a scalar, got shape {arr.shape}")
+    value = float(arr)
     if not math.isfinite(value) or value <= 0:
         raise ValueError(f"{name} must be positive and finite, got {value!r}")
     return value

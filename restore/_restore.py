@@ -28,7 +28,7 @@ from ._rate import (
     log_total_rate,
     pilot_log_z,
 )
-from ._validation import check_logdensity, check_position
+from ._validation import check_integer, check_logdensity, check_position
 from .dynamics import AbstractDiffusion, AbstractDynamics, AbstractJumpDynamics
 from .transfer import AbstractTransfer
 
@@ -142,7 +142,7 @@ class AbstractRestore(eqx.Module):
         if len(dims) > 1:
             raise ValueError(f"the transfer kernels live in different dimensions {sorted(dims)}")
         dim = dims.pop()
-        check_logdensity(logdensity, dim)
+        check_logdensity(logdensity, dim, with_grad=any(d.uses_gradient for d in dynamics))
         for d, t in zip(dynamics, transfers):
             d.check_dim(dim)
             if not d.is_invariant and not t.is_independent:
@@ -154,7 +154,16 @@ class AbstractRestore(eqx.Module):
         if (log_rate is None) == (tour_length is None):
             raise ValueError("give exactly one of log_rate (log c_tilde) or tour_length (mean tour duration)")
         if log_rate is not None:
-            rates = jnp.atleast_1d(jnp.asarray(log_rate))
+            if isinstance(log_rate, (bool, str, bytes)):
+                raise TypeError(f"log_rate must be a real number (log c_tilde), got {log_rate!r}")
+            try:
+                rates = jnp.atleast_1d(jnp.asarray(log_rate))
+            except (TypeError, ValueError) as err:
+                raise TypeError(f"log_rate must be a real number (log c_tilde), got {log_rate!r}") from err
+            if jnp.issubdtype(rates.dtype, jnp.integer):
+                rates = rates.astype(jnp.result_type(float))
+            if not jnp.issubdtype(rates.dtype, jnp.floating):
+                raise TypeError(f"log_rate must be a real number (log c_tilde), got dtype {rates.dtype}")
             if rates.ndim != 1 or rates.shape[0] not in (1, K):
                 raise ValueError(f"log_rate must be a scalar or one value per phase ({K}), got shape {rates.shape}")
             if not isinstance(rates, jax.core.Tracer) and not bool(jnp.all(jnp.isfinite(rates))):
@@ -178,8 +187,7 @@ class AbstractRestore(eqx.Module):
             bounds = tuple(check_positive(b, "bound") for b in bounds)
         if phase_rule is not None and not callable(phase_rule):
             raise TypeError("phase_rule must be a function from the tour index to a phase index")
-        if int(pilot_size) != pilot_size or pilot_size < 2:
-            raise ValueError(f"pilot_size must be an integer >= 2, got {pilot_size!r}")
+        pilot_size = check_integer(pilot_size, "pilot_size", minimum=2)
         self.logdensity = logdensity
         self.dynamics = dynamics
         self.transfers = transfers
@@ -194,6 +202,18 @@ class AbstractRestore(eqx.Module):
     @property
     def dim(self) -> int:
         return self.transfers[0].dim
+
+    @property
+    def dtype(self) -> jnp.dtype:
+        """The floating dtype the process runs in: that of the first phase's reference draws.
+
+        Positions (given starts, proposals, transfers) and the log density's values are cast
+        to it, so a float32 regeneration distribution gives a float32 run even when
+        `jax_enable_x64` is on, and a log density that computes in another precision cannot
+        change the dtypes of a state.
+        """
+        reference = self.transfers[0].reference
+        return jax.eval_shape(reference.sample, jax.random.key(0)).dtype
 
     @property
     def num_phases(self) -> int:
@@ -275,6 +295,8 @@ class AbstractRestore(eqx.Module):
             return log_q, jnp.atleast_1d(log_rates)[k], adjoint
 
         log_q, log_rate, adjoint = self._by_phase(phase, one)
+        dtype = point.logdensity.dtype
+        log_q, log_rate, adjoint = log_q.astype(dtype), log_rate.astype(dtype), adjoint.astype(dtype)
         if all(d.is_invariant for d in self.dynamics):
             return point, invalid, log_q, log_kill_rate(log_rate, log_q, point.logdensity), adjoint
         finite = jnp.isfinite(point.logdensity)
@@ -289,9 +311,10 @@ class AbstractRestore(eqx.Module):
         log_rates = self._require_rate()
         phase = jnp.asarray(phase, jnp.int32)
         if position is None:
-            position = self._by_phase(phase, lambda k: self.transfers[k].reference.sample(key))
+            position = self._by_phase(phase, lambda k: self.transfers[k].reference.sample(key).astype(self.dtype))
         else:
             position = check_position(position, self.dim)
+        position = position.astype(self.dtype)
         point, invalid = evaluate(self.logdensity, position, self.uses_gradient)
         point, _, _, log_kill, adjoint = self._terms(phase, point, invalid, log_rates)
         zero = jnp.zeros((), jnp.int32)
@@ -321,6 +344,7 @@ class AbstractRestore(eqx.Module):
 
         point = Point(state.position, state.logdensity, state.logdensity_grad)
         candidate, aux = dynamics.propose(k_propose, point, self.logdensity)
+        candidate = candidate.astype(state.position.dtype)
         next_phase = self._next_phase(state.tour + 1)
         fresh = self._by_phase(next_phase, lambda j: self.transfers[j].sample(k_regen, state.position)).astype(candidate.dtype)
         evaluated, invalid = evaluate(self.logdensity, jnp.where(killed, fresh, candidate), self.uses_gradient)
@@ -408,7 +432,8 @@ class AbstractRestore(eqx.Module):
         `restore.rate_bound(process.kill_rate, lower, upper, key=key).bound`.
         """
         log_rates = self._require_rate()
-        point, invalid = evaluate(self.logdensity, jnp.asarray(position), self.uses_gradient)
+        position = check_position(position, self.dim).astype(self.dtype)
+        point, invalid = evaluate(self.logdensity, position, self.uses_gradient)
         phase = jnp.asarray(phase, jnp.int32)
         _, _, _, log_kill, adjoint = self._terms(phase, point, invalid, log_rates)
         return adjoint + jnp.exp(log_kill)

@@ -11,7 +11,7 @@ import jax
 import numpy as np
 
 from ._diagnostics import TourStatistics, tour_statistics
-from ._estimates import Estimate, lane_ratio, log_mean_exp, tour_ratio
+from ._estimates import Estimate, check_total_time, lane_ratio, log_mean_exp, tour_ratio
 from ._observables import Observables
 
 Method = Literal["tours", "lanes"]
@@ -126,6 +126,7 @@ class SampleResult:
             if n < 2:
                 raise ValueError("need at least 2 complete tours to estimate the normalising constant")
             T, T2 = float(np.sum(s.sum_t, dtype=np.float64)), float(np.sum(s.sum_t2, dtype=np.float64))
+            check_total_time(T, T2, "tours")
             mean = T / n
             if self.is_regenerative:
                 sd = math.sqrt(max(T2 / n - mean**2, 0.0) * n / (n - 1))

@@ -32,6 +32,7 @@ from ._observables import Observables
 from ._progress import console_note, progress_bar
 from ._result import SampleResult
 from ._sharding import Devices, LaneSharding, lane_sharding, map_devices, map_lanes, put, to_host
+from ._validation import check_integer
 
 Weights = Literal["rao_blackwell", "time"]
 
@@ -230,8 +231,7 @@ class _Saver:
 def _thinning(num_steps: int, num_lanes: int, max_draws: int, thin: int | None) -> tuple[int, int]:
     if thin is None:
         thin = max(1, math.ceil(num_steps * num_lanes / max_draws)) if max_draws > 0 else num_steps + 1
-    if int(thin) != thin or thin < 1:
-        raise ValueError(f"thin must be a positive integer, got {thin!r}")
+    thin = check_integer(thin, "thin")
     stored = 0 if max_draws <= 0 else min(math.ceil(num_steps / thin), max(max_draws // num_lanes, 0))
     return int(thin), int(stored)
 
@@ -339,19 +339,13 @@ def sample(
         with Ctrl-C returns the result of the chunks completed so far (marked
         `interrupted`), after saving it to `checkpoint` if one is given.
     """
-    for name, value in (("num_lanes", num_lanes), ("num_steps", num_steps), ("num_chunks", num_chunks)):
-        if isinstance(value, bool) or int(value) != value or value < 1:
-            raise ValueError(f"{name} must be a positive integer, got {value!r}")
-    if isinstance(first_lane, bool) or int(first_lane) != first_lane or first_lane < 0:
-        raise ValueError(f"first_lane must be a non-negative integer, got {first_lane!r}")
-    first_lane = int(first_lane)
+    num_lanes, num_steps = check_integer(num_lanes, "num_lanes"), check_integer(num_steps, "num_steps")
+    num_chunks, first_lane = check_integer(num_chunks, "num_chunks"), check_integer(first_lane, "first_lane", minimum=0)
+    max_draws = check_integer(max_draws, "max_draws", minimum=0)
     if weights not in ("rao_blackwell", "time"):
         raise ValueError(f"weights must be 'rao_blackwell' or 'time', got {weights!r}")
-    num_lanes, num_steps = int(num_lanes), int(num_steps)
-    if checkpoint_steps is not None and (
-        isinstance(checkpoint_steps, bool) or int(checkpoint_steps) != checkpoint_steps or checkpoint_steps < 1
-    ):
-        raise ValueError(f"checkpoint_steps must be a positive integer or None, got {checkpoint_steps!r}")
+    if checkpoint_steps is not None:
+        checkpoint_steps = check_integer(checkpoint_steps, "checkpoint_steps")
     if checkpoint_seconds is not None and not (
         isinstance(checkpoint_seconds, (int, float)) and not isinstance(checkpoint_seconds, bool) and checkpoint_seconds > 0
     ):
@@ -371,7 +365,10 @@ def sample(
     calibrated, sampler = sampler, _without_pilot(sampler)
     dim = sampler.dim
     if positions is not None:
-        positions = jnp.asarray(positions)
+        try:
+            positions = jnp.asarray(positions)
+        except (TypeError, ValueError) as error:
+            raise TypeError(f"positions must be an array of numbers of shape (num_lanes, d), got {type(positions).__name__}") from error
         if positions.shape != (num_lanes, dim):
             raise ValueError(f"positions must have shape (num_lanes, d) = ({num_lanes}, {dim}), got {positions.shape}")
         if not bool(jnp.all(jnp.isfinite(positions))):

@@ -2,15 +2,18 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array
 
 
-def check_logdensity(logdensity: Callable[[Array], Array], dim: int) -> None:
-    """Trace `logdensity` once on a `(dim,)` point: it must return one real scalar."""
+def check_logdensity(logdensity: Callable[[Array], Array], dim: int, with_grad: bool = False) -> None:
+    """Trace `logdensity` once on a `(dim,)` point: it must return one real scalar (and, for
+    gradient-based dynamics, be differentiable by `jax.grad`)."""
     if not callable(logdensity):
         raise TypeError(f"logdensity must be callable, got {type(logdensity).__name__}")
     probe = jax.ShapeDtypeStruct((dim,), jnp.zeros(()).dtype)
@@ -29,11 +32,37 @@ def check_logdensity(logdensity: Callable[[Array], Array], dim: int) -> None:
         )
     if not jnp.issubdtype(out.dtype, jnp.floating):
         raise ValueError(f"logdensity must return a floating-point scalar, got dtype {out.dtype}")
+    if with_grad:
+        try:
+            jax.eval_shape(jax.grad(lambda x: jnp.asarray(logdensity(x)).astype(probe.dtype)), probe)
+        except Exception as err:
+            raise ValueError(
+                "the local dynamics use the gradient of logdensity, but jax.grad failed on it (a "
+                "jax.pure_callback or other code without a derivative rule?); use a gradient-free kernel "
+                f"such as restore.local.RandomWalk, or give logdensity a custom_jvp: {err}"
+            ) from err
+
+
+def check_integer(value, name: str, minimum: int = 1) -> int:
+    """An integer setting (a count or a size): a Python or NumPy integer, or an integral float,
+    at least `minimum`; booleans, NaN, infinities and strings are refused with a message naming it."""
+    wanted = {0: "a non-negative integer", 1: "a positive integer"}.get(minimum, f"an integer >= {minimum}")
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise TypeError(f"{name} must be {wanted}, got {value!r}")
+    if not math.isfinite(value) or int(value) != value or value < minimum:
+        raise ValueError(f"{name} must be {wanted}, got {value!r}")
+    return int(value)
 
 
 def check_position(position: Array, dim: int) -> Array:
     """A starting point: shape `(dim,)`, floating point, finite."""
-    arr = jnp.asarray(position)
+    try:
+        arr = jnp.asarray(position)
+    except (TypeError, ValueError) as err:
+        message = f"position must be an array of numbers of shape ({dim},), got {type(position).__name__}"
+        raise TypeError(message) from err
+    if jnp.issubdtype(arr.dtype, jnp.complexfloating):
+        raise TypeError(f"position must be real, got dtype {arr.dtype}")
     if not jnp.issubdtype(arr.dtype, jnp.floating):
         arr = arr.astype(jnp.zeros(()).dtype)
     if arr.shape != (dim,):
@@ -53,5 +82,5 @@ def check_parts(logdensity: Callable[[Array], Array], local, regeneration) -> No
         raise TypeError(f"local must be a restore.local kernel, got {type(local).__name__}")
     if not isinstance(regeneration, AbstractRegeneration):
         raise TypeError(f"regeneration must be a restore.regeneration distribution, got {type(regeneration).__name__}")
-    check_logdensity(logdensity, regeneration.dim)
+    check_logdensity(logdensity, regeneration.dim, with_grad=local.uses_gradient)
     local.check_dim(regeneration.dim)

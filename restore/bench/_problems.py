@@ -175,6 +175,7 @@ PROBLEMS: dict[str, Problem] = {
         Problem("gauss10", "10-d correlated Gaussian (unimodal control)", functools.partial(_gaussian_control, 10), 6.0, **_mixture_tuning(10)),
     )
 }
+"""The registered problems by name: `gmm2`, `gmm10`, `gmm50`, `tmix5`, `banana2`, `funnel5`, `gauss10`."""
 
 
 def get_problem(name: str) -> Problem:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import datetime
+import io
 import math
 import os
 import platform
@@ -13,6 +14,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from .._io import write_text
 from ._metrics import pooled_rms
 from ._problems import get_problem
 
@@ -170,16 +172,21 @@ def markdown(result) -> str:
 
 
 def write_results(result, out: Path) -> dict[str, Path]:
-    """Write `results.csv`, the plots and `results.md` into `out` (created if needed)."""
+    """Write `results.csv`, the plots and `results.md` into `out` (created if needed).
+
+    Every file is written atomically (a temporary file, then a rename), so an interrupted
+    write leaves the previous file, never a truncated one.
+    """
     from ._plots import plot_curves, plot_ratios
 
     out.mkdir(parents=True, exist_ok=True)
     files: dict[str, Path] = {"csv": out / "results.csv"}
-    with open(files["csv"], "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=COLUMNS)
-        writer.writeheader()
-        for r in result.rows:
-            writer.writerow({k: r[k] for k in COLUMNS})
+    text = io.StringIO()
+    writer = csv.DictWriter(text, fieldnames=COLUMNS)
+    writer.writeheader()
+    for r in result.rows:
+        writer.writerow({k: r[k] for k in COLUMNS})
+    write_text(files["csv"], text.getvalue(), newline="")
     for problem in result.config.problems:
         path = plot_curves(result.rows, problem, out / f"curves-{problem}.png")
         if path is not None:
@@ -189,5 +196,5 @@ def write_results(result, out: Path) -> dict[str, Path]:
         files["ratios"] = path
     result.files = files
     files["markdown"] = out / "results.md"
-    files["markdown"].write_text(markdown(result))
+    write_text(files["markdown"], markdown(result))
     return files

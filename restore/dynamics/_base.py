@@ -103,6 +103,8 @@ class Jump(AbstractJumpDynamics):
             raise TypeError(f"kernel must be a restore.local kernel, got {type(kernel).__name__}")
         from .._rate import check_positive
 
+        if rate is None:
+            raise TypeError("rate must be a positive number, got None")
         self.kernel = kernel
         self.rate = check_positive(rate, "rate")
 

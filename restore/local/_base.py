@@ -68,7 +68,12 @@ def metropolis_accept(
 
 def as_scale(value: Any, name: str) -> Array:
     """Check a step-size-like argument: positive and finite, scalar or a vector."""
-    arr = jnp.asarray(value)
+    try:
+        arr = jnp.asarray(value)
+    except (TypeError, ValueError) as err:
+        raise TypeError(f"{name} must be a positive number or a vector of them, got {value!r}") from err
+    if arr.dtype == bool or not (jnp.issubdtype(arr.dtype, jnp.floating) or jnp.issubdtype(arr.dtype, jnp.integer)):
+        raise TypeError(f"{name} must be a positive number or a vector of them, got dtype {arr.dtype}")
     if not jnp.issubdtype(arr.dtype, jnp.floating):
         arr = arr.astype(float)
     if arr.ndim > 1:

@@ -10,6 +10,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float, PRNGKeyArray
 
 from .._point import Point, evaluate
+from .._validation import check_integer
 from ._base import AbstractLocalKernel, LocalInfo, as_scale, check_vector_dim, metropolis_accept
 
 
@@ -41,9 +42,7 @@ class HMC(AbstractLocalKernel):
         self.step_size = as_scale(step_size, "step_size")
         if self.step_size.ndim != 0:
             raise ValueError("HMC step_size must be a scalar; use inverse_mass_matrix to precondition")
-        if int(num_integration_steps) != num_integration_steps or num_integration_steps < 1:
-            raise ValueError(f"num_integration_steps must be a positive integer, got {num_integration_steps!r}")
-        self.num_integration_steps = int(num_integration_steps)
+        self.num_integration_steps = check_integer(num_integration_steps, "num_integration_steps", minimum=1)
         self.inverse_mass_matrix = as_scale(inverse_mass_matrix, "inverse_mass_matrix")
 
     def check_dim(self, dim: int) -> None:

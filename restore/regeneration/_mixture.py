@@ -74,7 +74,13 @@ class Mixture(AbstractRegeneration):
                 components of different dimensions, weights of the wrong shape,
                 or weights that are not finite and strictly positive.
         """
-        components = tuple(components)
+        message = "`components` must be a sequence (list or tuple) of regeneration distributions, got "
+        if isinstance(components, (AbstractRegeneration, str, bytes)):
+            raise TypeError(message + type(components).__name__)
+        try:
+            components = tuple(components)
+        except TypeError as err:
+            raise TypeError(message + type(components).__name__) from err
         if len(components) == 0:
             raise ValueError("`components` must contain at least one distribution.")
         for i, c in enumerate(components):
@@ -87,10 +93,13 @@ class Mixture(AbstractRegeneration):
         if len(set(dims)) != 1:
             raise ValueError(f"All components must have the same dim, got dims {dims}.")
         k = len(components)
+        # The mixture computes in its components' dtype (a float32 mixture stays float32).
+        key = jax.random.key(0)
+        dtype = jnp.result_type(*(jax.eval_shape(c.sample, key).dtype for c in components))
         if weights is None:
-            log_weights = jnp.asarray(np.full((k,), -math.log(k)), jnp.result_type(float))
+            log_weights = jnp.asarray(np.full((k,), -math.log(k)), dtype)
         else:
-            weights = as_float_array(weights)
+            weights = as_float_array(weights, "weights")
             if weights.shape != (k,):
                 raise ValueError(
                     f"`weights` must have shape ({k},) (one per component), got "
@@ -103,9 +112,9 @@ class Mixture(AbstractRegeneration):
                         f"`weights` must be finite and strictly positive, got {w}."
                     )
                 log_w = np.log(w) - np.log(np.sum(w))
-                log_weights = jnp.asarray(log_w, weights.dtype)
+                log_weights = jnp.asarray(log_w, dtype)
             else:
-                log_weights = jnp.log(weights) - jnp.log(jnp.sum(weights))
+                log_weights = (jnp.log(weights) - jnp.log(jnp.sum(weights))).astype(dtype)
         self.components = components
         self.log_weights = log_weights
         self.dim = dims[0]

@@ -9,7 +9,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.scipy.special import gammaln
+from jax.scipy.special import betaln, gammaln
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
 from ._base import AbstractRegeneration
@@ -26,6 +26,33 @@ from ._utils import (
 
 #: Integer degrees of freedom up to this use the sum-of-squares chi-square draw.
 _MAX_INTEGER_DF = 64
+
+
+def _log_gamma_ratio(a: Array, h: float) -> Array:
+    """`log Gamma(a + h) - log Gamma(a)`, accurate for every `a > 0`.
+
+    The plain difference is exact to rounding for moderate `a` but cancels two huge terms
+    for large `a` (it is 0 instead of about `h log a` at `a = 1e20`); `betaln` is accurate
+    there. (Both branches are kept finite, so gradients stay clean.)
+    """
+    small = a < _LARGE_HALF_DF
+    plain = jnp.where(small, a, 1.0)
+    large = jnp.where(small, _LARGE_HALF_DF, a)
+    return jnp.where(small, gammaln(plain + h) - gammaln(plain), gammaln(h) - betaln(large, h))
+
+
+_LARGE_HALF_DF = 1e4
+
+
+def min_df(dtype) -> float:
+    """The smallest degrees of freedom whose draws stay finite in `dtype`.
+
+    A draw is `z / sqrt(w)` with `w ~ Gamma(df / 2) / (df / 2)`, and `P(w < t)` behaves like
+    `t^(df / 2)`: below these values a run of billions of draws meets values beyond the
+    largest float (about 1e38 in float32, 1e308 in float64) with a probability that is
+    no longer negligible.
+    """
+    return 0.1 if jnp.finfo(dtype).bits >= 64 else 0.5
 
 
 @final
@@ -57,7 +84,8 @@ class StudentT(AbstractRegeneration):
                 diagonal or a symmetric positive-definite `(d, d)` matrix.
                 Defaults to the identity.
             df: degrees of freedom, a positive scalar; smaller means heavier
-                tails. Defaults to 4.
+                tails. Defaults to 4. At least 0.1 in float64 (0.5 in float32):
+                with fewer, draws overflow to infinity.
 
         Raises:
             ValueError: for a location that is not 1-D, a scale of the wrong shape
@@ -66,7 +94,7 @@ class StudentT(AbstractRegeneration):
         loc = vector(loc, "loc")
         self.dim = loc.shape[0]
         tril = scale_tril(scale, self.dim, "scale")
-        df = as_float_array(df)
+        df = as_float_array(df, "df")
         if df.ndim != 0:
             raise ValueError(f"`df` must be a scalar, got shape {df.shape}.")
         if is_concrete(df):
@@ -74,6 +102,14 @@ class StudentT(AbstractRegeneration):
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"`df` must be finite and strictly positive, got {v}.")
         dtype = jnp.result_type(loc.dtype, tril.dtype)
+        if is_concrete(df):
+            smallest = min_df(dtype)
+            if float(np.asarray(df)) < smallest:
+                raise ValueError(
+                    f"`df` = {float(np.asarray(df)):.3g} is too small for {jnp.dtype(dtype).name}: a Student-t with "
+                    f"fewer than {smallest} degrees of freedom has draws beyond the largest {jnp.dtype(dtype).name} "
+                    f"(they overflow to infinity); use df >= {smallest}"
+                )
         self.loc = loc.astype(dtype)
         self.scale_tril = tril.astype(dtype)
         self.df = df.astype(dtype)
@@ -119,12 +155,14 @@ class StudentT(AbstractRegeneration):
         """Normalised log density of one point `x` of shape `(d,)`."""
         x = check_point(x, self.dim)
         d = self.dim
-        df = self.df
+        # Beyond 1/eps^2 degrees of freedom the density equals the Gaussian limit to working
+        # precision; capping df keeps `maha / df` from underflowing (XLA flushes subnormals).
+        df = jnp.minimum(self.df, 1.0 / jnp.finfo(self.df.dtype).eps ** 2)
         maha = mahalanobis_sq(self.scale_tril, x - self.loc)
+        log_gamma_ratio = _log_gamma_ratio(0.5 * df, 0.5 * d)
         return (
-            gammaln(0.5 * (df + d))
-            - gammaln(0.5 * df)
-            - 0.5 * d * jnp.log(df * math.pi)
+            log_gamma_ratio
+            - 0.5 * d * (jnp.log(df) + math.log(math.pi))
             - half_log_det(self.scale_tril)
             - 0.5 * (df + d) * jnp.log1p(maha / df)
         )

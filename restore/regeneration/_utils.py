@@ -11,13 +11,20 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 
-def as_float_array(x: ArrayLike) -> Array:
+def as_float_array(x: ArrayLike, name: str | None = None) -> Array:
     """Convert to a JAX array of a floating dtype.
 
     Floating inputs keep their dtype; integer/bool inputs become the default
-    float dtype (float32, or float64 under `jax_enable_x64`).
+    float dtype (float32, or float64 under `jax_enable_x64`). Anything else (strings,
+    `None`, complex numbers, ragged lists) raises a `TypeError` naming the argument.
     """
-    x = jnp.asarray(x)
+    label = f"`{name}`" if name else "the value"
+    try:
+        x = jnp.asarray(x)
+    except (TypeError, ValueError) as err:
+        raise TypeError(f"{label} must be an array of real numbers, got {repr(x)[:80]}") from err
+    if jnp.issubdtype(x.dtype, jnp.complexfloating):
+        raise TypeError(f"{label} must be real, got dtype {x.dtype}")
     if not jnp.issubdtype(x.dtype, jnp.floating):
         x = x.astype(jnp.result_type(x.dtype, float))
     return x
@@ -56,7 +63,7 @@ def check_point(x: ArrayLike, dim: int) -> Array:
 
 def vector(x: ArrayLike, name: str) -> Array:
     """A floating 1-D array with at least one entry."""
-    x = as_float_array(x)
+    x = as_float_array(x, name)
     if x.ndim != 1 or x.shape[0] == 0:
         raise ValueError(f"`{name}` must be a non-empty 1-D array, got shape {x.shape}.")
     return x
@@ -71,7 +78,7 @@ def scale_tril(cov: ArrayLike, dim: int, name: str) -> Float[Array, "d d"]:
         dim: the dimension `d`.
         name: the argument name used in error messages.
     """
-    cov = as_float_array(cov)
+    cov = as_float_array(cov, name)
     dtype = cov.dtype
     concrete = is_concrete(cov)
     if cov.ndim == 0 or cov.shape == (dim,):

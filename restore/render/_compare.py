@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import io
 import math
 import time
 from collections.abc import Callable, Sequence
@@ -19,6 +20,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from .._io import save_figure, write_text
 from ._driver import render
 from ._methods import GRADIENT_METHODS, METHODS, make_renderer
 from ._metrics import l1, mape, mrse, mse, relative_mse, variance_across
@@ -272,8 +274,10 @@ def plot_scene(comparison: RenderComparison, scene: str, path: Path) -> Path | N
     ax.set(xscale="log", yscale="log", xlabel="wall time (s, compilation excluded)", ylabel="relative MSE", title=f"{scene}: error against time")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    try:
+        save_figure(fig, path, dpi=110)
+    finally:
+        plt.close(fig)
     return path
 
 
@@ -281,16 +285,17 @@ def write_comparison(comparison: RenderComparison, out: Path) -> dict[str, Path]
     """Write `results.csv`, one figure per scene and `results.md` into `out`."""
     out.mkdir(parents=True, exist_ok=True)
     files = {"csv": out / "results.csv"}
-    with open(files["csv"], "w", newline="") as f:
-        writer = csv.writer(f)
-        writer.writerow(CSV_COLUMNS)
-        for r in comparison.runs:
-            writer.writerow([r.scene, r.method, r.realisation, f"{r.seconds:.3f}", r.evaluations] + [f"{r.metrics[k]:.6g}" for k in CSV_COLUMNS[5:]])
+    text = io.StringIO()
+    writer = csv.writer(text)
+    writer.writerow(CSV_COLUMNS)
+    for r in comparison.runs:
+        writer.writerow([r.scene, r.method, r.realisation, f"{r.seconds:.3f}", r.evaluations] + [f"{r.metrics[k]:.6g}" for k in CSV_COLUMNS[5:]])
+    write_text(files["csv"], text.getvalue(), newline="")
     for scene in comparison.scenes:
         path = plot_scene(comparison, scene, out / f"scene-{scene}.png")
         if path is not None:
             files[f"scene-{scene}"] = path
     comparison.files = files
     files["markdown"] = out / "results.md"
-    files["markdown"].write_text(markdown(comparison))
+    write_text(files["markdown"], markdown(comparison))
     return files

@@ -31,6 +31,11 @@ def tonemap(image, exposure: float = 0.0) -> np.ndarray:
     return np.round(srgb * 255).astype(np.uint8)
 
 
+def _save_npy(tmp: Path, array: np.ndarray) -> None:
+    with open(tmp, "wb") as handle:  # a handle: np.save appends ".npy" to a name like "image.NPY"
+        np.save(handle, array)
+
+
 def save_image(path: str | os.PathLike, image, exposure: float = 0.0) -> Path:
     """Write `image` `(H, W, 3)` to `path`: `.exr` (linear float, needs Mitsuba), `.npy`, or `.png` (tonemapped).
 
@@ -44,7 +49,7 @@ def save_image(path: str | os.PathLike, image, exposure: float = 0.0) -> Path:
         raise ValueError(f"unsupported image file {path.name!r}: use one of {', '.join(IMAGE_SUFFIXES)}")
     array = _as_image(image)
     if suffix == ".npy":
-        return atomic_write(path, lambda tmp: np.save(tmp, array))
+        return atomic_write(path, lambda tmp: _save_npy(tmp, array))
     if suffix == ".png":
         import matplotlib.image
 

@@ -40,7 +40,8 @@ def ergodicity_test(
         sampler: a `JumpRestore` (calibrated or not).
         key: PRNG key.
         truths: mapping `name -> (function of one state, true expectation)`.
-        num_lanes, num_steps: size of the run.
+        num_lanes: number of lanes of the run.
+        num_steps: steps per lane.
         log_z: true log normalising constant of the sampler's log density, if known.
         alpha: family-wise level.
         sample_kwargs: passed on to `restore.sample` (e.g. `weights="time"`).

@@ -10,13 +10,14 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import os
-import tempfile
 import time
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
+
+from restore._io import atomic_write
 
 from ._llvm import load_mitsuba
 from ._scene_checks import path_settings
@@ -166,17 +167,9 @@ def reference_image(
 def write_exr(path: str | Path, image: np.ndarray) -> Path:
     """Write a linear `(H, W, 3)` image as EXR, atomically (temporary file beside it, then rename)."""
     mi = load_mitsuba()
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".exr", dir=path.parent)
-    os.close(fd)
-    try:
-        with _exr_threads():
-            mi.util.write_bitmap(tmp, np.ascontiguousarray(image, dtype=np.float32), write_async=False)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-    return path
+    image = np.ascontiguousarray(image, dtype=np.float32)
+    with _exr_threads():
+        return atomic_write(path, lambda tmp: mi.util.write_bitmap(str(tmp), image, write_async=False))
 
 
 def read_exr(path: str | Path) -> np.ndarray:

@@ -70,6 +70,35 @@ def check_tracer_support(scene: Any) -> None:
     integrator = scene.integrator()
     if integrator is not None and getattr(integrator, "hide_emitters", False):
         raise UnsupportedSceneError("the integrator hides directly visible emitters (hide_emitters); not supported")
+    width, height = (int(v) for v in film.crop_size())
+    if width * height >= MAX_PIXELS:
+        raise UnsupportedSceneError(
+            f"the film has {width} x {height} pixels; pixel indices are int32, so at most {MAX_PIXELS - 1:,} "
+            "pixels are supported (pass a smaller resolution)"
+        )
+    _check_camera_rays(sensor)
+
+
+#: Pixel indices `y W + x` are int32 (NumPy and JAX images).
+MAX_PIXELS = 1 << 31
+
+
+def _check_camera_rays(sensor: Any) -> None:
+    """The camera must produce finite rays: Mitsuba accepts e.g. a NaN field of view or a
+    singular `to_world`, whose NaN rays would silently give a black image."""
+    import drjit as dr
+    import mitsuba as mi
+
+    corners = [(0.5, 0.5), (0.0, 0.0), (1.0, 1.0)]
+    film_pos = mi.Point2f([c[0] for c in corners], [c[1] for c in corners])
+    ray, _ = sensor.sample_ray(time=sensor.shutter_open(), sample1=0.5, sample2=film_pos, sample3=mi.Point2f(0.5))
+    finite = dr.isfinite(ray.o.x) & dr.isfinite(ray.o.y) & dr.isfinite(ray.o.z)
+    finite &= dr.isfinite(ray.d.x) & dr.isfinite(ray.d.y) & dr.isfinite(ray.d.z)
+    if not bool(dr.all(finite)):
+        raise UnsupportedSceneError(
+            f"the camera ({sensor.class_name()}) produces non-finite rays; check its field of view "
+            "(fov), near/far clip and to_world transform"
+        )
 
 
 def delta_emitters(scene: Any) -> list[str]:

@@ -321,6 +321,7 @@ SCENES: dict[str, Callable[..., dict[str, Any]]] = {
     "caustic": caustic,
     "glass_torus": glass_torus,
 }
+"""The built-in scenes by name, each a function returning a Mitsuba scene dictionary."""
 
 
 # --------------------------------------------------------------------------- loading
@@ -380,7 +381,9 @@ def load_scene(
 
     Raises:
         FileNotFoundError: for a path that does not exist.
-        ValueError: for an unknown name, or an XML file Mitsuba cannot parse.
+        ValueError: for an unknown name, a directory, a file that cannot be read, is not
+            XML, or is XML but not a Mitsuba `<scene>`, or a scene Mitsuba cannot load
+            (the message is Mitsuba's, naming the file and line).
     """
     mi = _mi()
     if is_scene_file(spec):
@@ -420,21 +423,36 @@ def _copy_dict(d: Mapping[str, Any]) -> dict[str, Any]:
 
 def _load_xml(mi: Any, path: Path, resolution: Sequence[int] | None, max_depth: int | None) -> Any:
     path = path.expanduser()
+    if path.is_dir():
+        raise ValueError(f"{str(path)!r} is a directory, not a Mitsuba scene file")
     if not path.is_file():
         raise FileNotFoundError(f"Mitsuba scene file not found: {str(path)!r}")
     try:
         tree = ElementTree.parse(path)
-    except ElementTree.ParseError as err:
+    except OSError as err:  # e.g. no permission to read it
+        raise ValueError(f"cannot read the scene file {str(path)!r}: {err.strerror or err}") from err
+    except (ElementTree.ParseError, LookupError, ValueError) as err:  # LookupError: an unknown encoding
         raise ValueError(f"Mitsuba could not load the scene file {str(path)!r}: XML parsing failed: {err}") from err
-    _override_xml(tree.getroot(), resolution, max_depth)
+    root = tree.getroot()
+    if root.tag != "scene":
+        raise ValueError(
+            f"the file {str(path)!r} does not describe a Mitsuba scene: its root element is <{root.tag}>, not <scene>"
+        )
+    _override_xml(root, resolution, max_depth)
     # Written beside the original, so that relative paths (meshes, textures, includes) still resolve.
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}-", suffix=".xml", dir=path.parent)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}-", suffix=".xml", dir=path.parent)
+    except OSError as err:
+        reason = err.strerror or err
+        raise ValueError(f"cannot load the scene file {str(path)!r}: its folder is not writable ({reason})") from err
     os.close(fd)
     try:
         tree.write(tmp, encoding="utf-8", xml_declaration=True)
         scene = mi.load_file(tmp)
     except Exception as err:
-        raise ValueError(f"Mitsuba could not load the scene file {str(path)!r}: {err}") from err
+        # Mitsuba names the temporary copy; the user knows the original.
+        message = str(err).replace(tmp, str(path)).replace(Path(tmp).name, path.name)
+        raise ValueError(f"Mitsuba could not load the scene file {str(path)!r}: {message}") from err
     finally:
         Path(tmp).unlink(missing_ok=True)
     if not isinstance(scene, mi.Scene):
@@ -450,7 +468,14 @@ def _set_child(parent: ElementTree.Element, tag: str, name: str, value: str) -> 
 
 
 def _override_xml(root: ElementTree.Element, resolution: Sequence[int] | None, max_depth: int | None) -> None:
-    """Box filters on every film, then the resolution and `path` depth overrides, on the XML tree."""
+    """Box filters on every film, then the resolution and `path` depth overrides, on the XML tree.
+
+    A sensor without a film gets an `hdrfilm` (Mitsuba's default film, whose default filter
+    is Gaussian), so that its filter can be set too.
+    """
+    for sensor in root.iter("sensor"):
+        if sensor.find("film") is None:
+            ElementTree.SubElement(sensor, "film", type="hdrfilm")
     for film in root.iter("film"):
         for rfilter in film.findall("rfilter"):
             film.remove(rfilter)

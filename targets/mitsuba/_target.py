@@ -50,8 +50,14 @@ class PrimarySampleSpace:
         batch_size: the most paths traced per Dr.Jit call.
 
     Attributes:
-        dim, resolution `(W, H)`, num_pixels, scene (the `mi.Scene`), max_depth, rr_depth,
-        russian_roulette.
+        dim: the number of primary samples `D` of a path.
+        resolution: the film size `(W, H)`.
+        num_pixels: `W * H`.
+        scene: the loaded `mi.Scene`.
+        max_depth: the maximum path depth.
+        rr_depth: the depth at which Russian roulette starts.
+        russian_roulette: whether paths are stopped by Russian roulette.
+        batch_size: the most paths traced per Dr.Jit call.
 
     Raises:
         UnsupportedSceneError: for a camera or film the tracer cannot reproduce.
