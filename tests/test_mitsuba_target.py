@@ -13,24 +13,15 @@ regions by tens of percent and fail them by a wide margin.
 
 from __future__ import annotations
 
-import importlib.util
 import os
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from ._mitsuba_extra import mitsuba_extra_installed
 
-
-def _extra_installed() -> bool:
-    """Whether Mitsuba and Dr.Jit are installed, without importing them (see the module docstring)."""
-    try:
-        return all(importlib.util.find_spec(name) is not None for name in ("mitsuba", "drjit"))
-    except (ImportError, ValueError):
-        return False
-
-
-if not _extra_installed():
+if not mitsuba_extra_installed():
     pytest.skip("the `mitsuba` extra is not installed", allow_module_level=True)
 
 import jax
@@ -41,6 +32,7 @@ from targets.mitsuba import (
     LLVMNotFoundError,
     PrimarySampleSpace,
     UnsupportedSceneError,
+    _llvm,
     cornell_box,
     dimension,
     find_libllvm,
@@ -51,7 +43,6 @@ from targets.mitsuba import (
     render_native,
     render_native_for,
 )
-from targets.mitsuba import _llvm
 
 LUMINANCE = np.array([0.212671, 0.715160, 0.072169])
 REPLICAS = 16

@@ -13,7 +13,6 @@ loaded at 4x4 pixels and depth 2. Skipped without the `mitsuba` extra.
 from __future__ import annotations
 
 import errno
-import importlib.util
 import os
 import random
 from pathlib import Path
@@ -24,15 +23,9 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
+from ._mitsuba_extra import mitsuba_extra_installed
 
-def _extra_installed() -> bool:
-    try:
-        return all(importlib.util.find_spec(name) is not None for name in ("mitsuba", "drjit"))
-    except (ImportError, ValueError):
-        return False
-
-
-if not _extra_installed():
+if not mitsuba_extra_installed():
     pytest.skip("the `mitsuba` extra is not installed", allow_module_level=True)
 
 from typer.testing import CliRunner  # noqa: E402
