@@ -27,7 +27,14 @@ from ._accumulators import (
     update_histogram,
     update_lane_sums,
 )
-from ._checkpoint import CheckpointError, array_digest, key_fingerprint, load_checkpoint, save_checkpoint
+from ._checkpoint import (
+    CheckpointError,
+    array_digest,
+    check_interval,
+    key_fingerprint,
+    load_checkpoint,
+    save_checkpoint,
+)
 from ._observables import Observables
 from ._progress import console_note, progress_bar
 from ._result import SampleResult
@@ -346,10 +353,7 @@ def sample(
         raise ValueError(f"weights must be 'rao_blackwell' or 'time', got {weights!r}")
     if checkpoint_steps is not None:
         checkpoint_steps = check_integer(checkpoint_steps, "checkpoint_steps")
-    if checkpoint_seconds is not None and not (
-        isinstance(checkpoint_seconds, (int, float)) and not isinstance(checkpoint_seconds, bool) and checkpoint_seconds > 0
-    ):
-        raise ValueError(f"checkpoint_seconds must be a positive number or None, got {checkpoint_seconds!r}")
+    checkpoint_seconds = check_interval(checkpoint_seconds)
     sharding = lane_sharding(devices, num_lanes)
     if not hasattr(sampler, "init") or not hasattr(sampler, "step"):
         raise TypeError(f"sampler must have init and step methods, got {type(sampler).__name__}")

@@ -13,7 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._checkpoint import key_fingerprint, load_checkpoint, save_checkpoint
+from .._checkpoint import check_interval, key_fingerprint, load_checkpoint, save_checkpoint
 from ._pss import check_target
 from ._renderer import (
     AbstractRenderer,
@@ -178,10 +178,7 @@ def render(
     check_target(target, needs_gradient=renderer.uses_gradient)
     seconds, evaluations = _check_budget(seconds, evaluations)
     lanes = check_lanes(lanes)
-    if checkpoint_seconds is not None and (
-        isinstance(checkpoint_seconds, bool) or not isinstance(checkpoint_seconds, (int, float)) or checkpoint_seconds <= 0
-    ):
-        raise ValueError(f"checkpoint_seconds must be a positive number or None, got {checkpoint_seconds!r}")
+    checkpoint_seconds = check_interval(checkpoint_seconds)
     if on_update is not None and not callable(on_update):
         raise TypeError("on_update must be callable as on_update(image, statistics)")
     init_cost, step_cost = renderer.init_cost(lanes), renderer.step_cost(lanes)
