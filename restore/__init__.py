@@ -20,6 +20,7 @@ from ._bounds import rate_bound as rate_bound
 from ._checkpoint import CheckpointError as CheckpointError
 from ._diagnostics import TourStatistics as TourStatistics
 from ._estimates import Estimate as Estimate
+from ._estimates import UnreliableEstimateWarning as UnreliableEstimateWarning
 from ._jump_restore import JumpRestore as JumpRestore
 from ._jump_restore import JumpRestoreInfo as JumpRestoreInfo
 from ._jump_restore import JumpRestoreState as JumpRestoreState
@@ -27,6 +28,7 @@ from ._merge import merge_results as merge_results
 from ._mixture_mh import MixtureMH as MixtureMH
 from ._mixture_mh import MixtureMHInfo as MixtureMHInfo
 from ._mixture_mh import MixtureMHState as MixtureMHState
+from ._pareto import K_HAT_LIMIT as K_HAT_LIMIT
 from ._point import Point as Point
 from ._rate import PilotEstimate as PilotEstimate
 from ._restore import AbstractRestore as AbstractRestore

@@ -57,13 +57,19 @@ def init_lane_sums(num_lanes: int, size: int, dtype, skip_first: Array) -> LaneS
     return LaneSums(zm, z, zm, zm, zm, z, z, zi, zi, z, zm, zm, z, skip_first, ninf, ninf, zi, zi, zi, zi, zi, zi, zi, z)
 
 
+def open_tour_totals(sums: LaneSums, values: Array, weight: Array) -> tuple[Array, Array]:
+    """`F` `(L, m)` and `T` `(L,)` of each lane's open tour, this step included (the tour's
+    totals when it ends at this step)."""
+    w = weight[:, None]
+    return sums.open_f + jnp.where(w > 0, w * values, 0.0), sums.open_t + weight
+
+
 def update_lane_sums(sums: LaneSums, values: Array, weight: Array, info) -> LaneSums:
     """Add one step of every lane: `values` `(L, m)` at the held states, weights `(L,)`."""
     w = weight[:, None]
     wf = jnp.where(w > 0, w * values, 0.0)
     wf2 = jnp.where(w > 0, w * values**2, 0.0)
-    open_f = sums.open_f + wf
-    open_t = sums.open_t + weight
+    open_f, open_t = open_tour_totals(sums, values, weight)
     end = info.regenerated
     count = end & ~sums.skip_first
     c = count[:, None]
@@ -102,10 +108,9 @@ def update_lane_sums(sums: LaneSums, values: Array, weight: Array, info) -> Lane
     )
 
 
-def completed_durations(sums_before: LaneSums, weight: Array, info) -> tuple[Array, Array]:
-    """Durations of the tours that end at this step (and a mask of which lanes count them)."""
-    count = info.regenerated & ~sums_before.skip_first
-    return sums_before.open_t + weight, count
+def counted_ends(sums_before: LaneSums, info) -> Array:
+    """Lanes whose tour ends at this step and counts (not a lane's partial first tour)."""
+    return info.regenerated & ~sums_before.skip_first
 
 
 def update_histogram(hist: tuple[Array, Array], durations: Array, mask: Array) -> tuple[Array, Array]:

@@ -7,6 +7,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ._pareto import K_HAT_LIMIT, k_hat_limit
+
 #: A tour-length distribution is flagged as heavy-tailed when the longest 1% of tours hold
 #: more than this share of the total time (exponential tour lengths give about 5.6%)...
 LONGEST_SHARE_LIMIT = 0.3
@@ -32,7 +34,14 @@ class TourStatistics(NamedTuple):
         max_duration: the longest complete tour.
         incomplete_fraction: share of the simulated time in tours that were still open at
             the end (left out of tour-based estimates).
-        heavy_tailed: the warning flag (see `LONGEST_SHARE_LIMIT`, `EFFECTIVE_SHARE_LIMIT`).
+        heavy_tailed: the warning flag: the Pareto shape of the longest tours is at or above
+            its limit, or the shares `LONGEST_SHARE_LIMIT`, `EFFECTIVE_SHARE_LIMIT` are crossed.
+        k_hat: Pareto shape of the tail of the tour durations (`restore.K_HAT_LIMIT`); NaN
+            with too few tours to fit it.
+        k_limit: the largest `k_hat` at which tour-based error bars are trusted for this
+            many tours.
+        unfinished_tours: tours still running after the finishing steps, left out of the
+            tour-based estimates (any at all flags the tours as heavy-tailed).
     """
 
     num_tours: int
@@ -44,6 +53,9 @@ class TourStatistics(NamedTuple):
     max_duration: float
     incomplete_fraction: float
     heavy_tailed: bool
+    k_hat: float = math.nan
+    k_limit: float = math.nan
+    unfinished_tours: int = 0
 
 
 def longest_share(counts: np.ndarray, times: np.ndarray, fraction: float = 0.01) -> float:
@@ -72,19 +84,24 @@ def tour_statistics(
     all_t: np.ndarray,
     histogram: tuple[np.ndarray, np.ndarray],
     expected_duration: float,
+    k_hat: float = math.nan,
+    unfinished_tours: int = 0,
 ) -> TourStatistics:
     n = int(np.sum(num_tours))
     T, T2 = float(np.sum(sum_t, dtype=np.float64)), float(np.sum(sum_t2, dtype=np.float64))
     total = float(np.sum(all_t, dtype=np.float64))
+    limit = k_hat_limit(n)
     if n == 0:
-        return TourStatistics(0, math.nan, math.nan, expected_duration, 0.0, math.nan, 0.0, 1.0, False)
+        return TourStatistics(0, math.nan, math.nan, expected_duration, 0.0, math.nan, 0.0, 1.0, unfinished_tours > 0, k_hat, limit, unfinished_tours)
     mean = T / n
     var = max(T2 / n - mean**2, 0.0) * n / max(n - 1, 1)
     eff = T**2 / T2 if T2 > 0 else 0.0
     share = longest_share(*histogram)
     # With underflowed durations (T or T^2 summing to zero) the tail statistics mean nothing:
     # estimates refuse such runs with a clear error, so no heavy-tail warning is raised here.
-    heavy = n >= 20 and T2 > 0 and (share > LONGEST_SHARE_LIMIT or eff < EFFECTIVE_SHARE_LIMIT * n)
+    heavy = unfinished_tours > 0 or (
+        n >= 20 and T2 > 0 and (share > LONGEST_SHARE_LIMIT or eff < EFFECTIVE_SHARE_LIMIT * n or K_HAT_LIMIT <= limit <= k_hat)
+    )
     return TourStatistics(
         num_tours=n,
         mean_duration=mean,
@@ -95,4 +112,7 @@ def tour_statistics(
         max_duration=float(np.max(max_tour)),
         incomplete_fraction=max(0.0, 1.0 - T / total) if total > 0 else 1.0,
         heavy_tailed=bool(heavy),
+        k_hat=float(k_hat),
+        k_limit=limit,
+        unfinished_tours=int(unfinished_tours),
     )

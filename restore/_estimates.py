@@ -7,12 +7,46 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ._pareto import K_HAT_LIMIT, k_hat_limit, pareto_k
+
+
+class UnreliableEstimateWarning(RuntimeWarning):
+    """An estimate's standard error cannot be trusted (a heavy tail, or too few terms to check)."""
+
 
 class Estimate(NamedTuple):
-    """An estimate with its standard error (arrays of the observable's shape)."""
+    """An estimate with its standard error, and whether that error bar can be trusted.
+
+    `k_hat` is the Pareto shape of the tail of the terms the estimate sums (per-tour
+    residuals `F - pi_hat T` for tour-based estimates, tour durations or importance
+    weights for `log Z`, per-lane residuals for lane-based ones). The central-limit
+    standard error needs finite variance, `k < 1/2`: at or above `k_limit` (see
+    `restore.K_HAT_LIMIT`) the estimate is marked unreliable, because a few terms
+    dominate and the true error can be many times the reported one. NaN means the tail
+    could not be assessed (too few terms), which also counts as unreliable.
+
+    Attributes:
+        value: the estimate (the observable's shape).
+        standard_error: its standard error (same shape).
+        k_hat: the tail shape of each component (same shape; NaN where not assessed).
+        k_limit: the largest `k_hat` at which the error bar is trusted (depends on how many
+            terms there are; NaN where no diagnostic was computed).
+        caveat: a reason, found outside the tail fit, why the error bar cannot be trusted
+            (e.g. tours that were still running when the run ended); empty if none.
+    """
 
     value: np.ndarray
     standard_error: np.ndarray
+    k_hat: np.ndarray | float = math.nan
+    k_limit: float = math.nan
+    caveat: str = ""
+
+    @property
+    def reliable(self) -> np.ndarray:
+        """Whether each component's error bar can be trusted: `k_hat < k_limit` and no caveat (a bool array)."""
+        with np.errstate(invalid="ignore"):
+            ok = (np.asarray(self.k_hat) < self.k_limit) & (not self.caveat)
+        return np.broadcast_to(ok, np.shape(self.value))
 
     def z_score(self, truth) -> np.ndarray:
         """`(value - truth) / standard_error`."""
@@ -21,9 +55,32 @@ class Estimate(NamedTuple):
 
     def __repr__(self) -> str:
         fmt = {"float_kind": lambda v: f"{v:.4g}"}
-        value = np.array2string(np.asarray(self.value), formatter=fmt)
-        error = np.array2string(np.asarray(self.standard_error), formatter=fmt)
-        return f"{type(self).__name__}(value={value}, standard_error={error})"
+        show = lambda a: np.array2string(np.asarray(a), formatter=fmt)  # noqa: E731
+        text = f"{type(self).__name__}(value={show(self.value)}, standard_error={show(self.standard_error)}, k_hat={show(self.k_hat)}"
+        if not np.all(self.reliable):
+            text += f", UNRELIABLE: {unreliable_reason(self)}"
+        return text + ")"
+
+
+def unreliable_reason(estimate: Estimate) -> str:
+    """Plain words on why an estimate's error bar cannot be trusted (empty if it can)."""
+    k = np.asarray(estimate.k_hat, np.float64)
+    if np.all(estimate.reliable):
+        return ""
+    if estimate.caveat:
+        return estimate.caveat
+    if math.isnan(estimate.k_limit) or np.all(np.isnan(k)):
+        return "too few tours (or lanes) to check the tail of the terms; its error bar is not backed by a diagnostic"
+    worst = float(np.nanmax(k))
+    if estimate.k_limit < K_HAT_LIMIT:
+        return (
+            f"too few terms (tours, or lanes) to trust a standard error: tail shape k_hat = {worst:.2f} >= "
+            f"{estimate.k_limit:.2f}, the limit for so few; run longer or with more lanes"
+        )
+    return (
+        f"tail shape k_hat = {worst:.2f} >= {estimate.k_limit:.2f}: a few long tours dominate, the variance is likely "
+        "infinite and the true error can be many times the standard error"
+    )
 
 
 def check_total_time(total: float, total_sq: float, what: str) -> None:
@@ -70,7 +127,10 @@ def tour_ratio(sum_f, sum_f2, sum_ft, sum_t, sum_t2, num_tours) -> Estimate:
 
 
 def lane_ratio(all_f, all_t) -> Estimate:
-    """Ratio estimator over independent lanes: each lane's weighted sums are one replicate."""
+    """Ratio estimator over independent lanes: each lane's weighted sums are one replicate.
+
+    Its `k_hat` is the tail shape of the per-lane residuals `|F_lane - value T_lane|`.
+    """
     f = np.asarray(all_f, np.float64)
     t = np.asarray(all_t, np.float64)
     lanes = t.shape[0]
@@ -80,7 +140,9 @@ def lane_ratio(all_f, all_t) -> Estimate:
     check_total_time(T, float(np.sum(t**2)), "lanes")
     value = f.sum(axis=0) / T
     resid = f - value * t.reshape((-1,) + (1,) * (f.ndim - 1))
-    return Estimate(value, np.sqrt(np.sum(resid**2, axis=0) * lanes / (lanes - 1.0)) / T)
+    flat = np.abs(resid.reshape(lanes, -1))
+    k_hat = np.array([pareto_k(flat[:, j], lanes) for j in range(flat.shape[1])]).reshape(value.shape)
+    return Estimate(value, np.sqrt(np.sum(resid**2, axis=0) * lanes / (lanes - 1.0)) / T, k_hat, k_hat_limit(lanes))
 
 
 def log_mean_exp(log_sum: np.ndarray, log_sum2: np.ndarray, count: float) -> tuple[float, float]:

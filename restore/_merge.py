@@ -9,6 +9,7 @@ import numpy as np
 
 from ._accumulators import LaneSums
 from ._result import SampleResult
+from ._tails import TourTails
 
 # What every part must share for the lanes to be parts of one run.
 _SHARED = ("sampler_name", "is_regenerative", "has_tours", "num_steps", "thin", "weights", "log_rate")
@@ -50,15 +51,18 @@ def merge_results(results: Sequence[SampleResult]) -> SampleResult:
     concat = lambda *parts: np.concatenate(parts, axis=0)  # noqa: E731
     sums = LaneSums(*(concat(*(np.asarray(getattr(r.sums, f)) for r in results)) for f in LaneSums._fields))
     final_state = jax.tree.map(concat, *(r.final_state for r in results))
+    tails = None if first.tails is None else TourTails(*(concat(*parts) for parts in zip(*(r.tails for r in results))))
     merged = SampleResult(**{**first.__dict__})
     merged.__dict__.update(
         sums=sums,
+        tails=tails,
         histogram=tuple(sum(np.asarray(r.histogram[k]) for r in results) for k in range(2)),
         draws=np.concatenate([r.draws for r in results], axis=1),
         draw_weights=np.concatenate([r.draw_weights for r in results], axis=1),
         final_state=final_state,
         num_lanes=sum(r.num_lanes for r in results),
         finishing_steps=max(r.finishing_steps for r in results),
+        unfinished_tours=sum(r.unfinished_tours for r in results),
         wall_time=max(r.wall_time for r in results),
         interrupted=any(r.interrupted for r in results),
     )

@@ -11,8 +11,18 @@ import jax
 import numpy as np
 
 from ._diagnostics import TourStatistics, tour_statistics
-from ._estimates import Estimate, check_total_time, lane_ratio, log_mean_exp, tour_ratio
+from ._estimates import (
+    Estimate,
+    UnreliableEstimateWarning,
+    check_total_time,
+    lane_ratio,
+    log_mean_exp,
+    tour_ratio,
+    unreliable_reason,
+)
 from ._observables import Observables
+from ._pareto import k_hat_limit
+from ._tails import TourTails, duration_k, importance_k, residual_k, select_lanes
 
 Method = Literal["tours", "lanes"]
 
@@ -32,7 +42,7 @@ class SampleResult:
         self.__dict__.update(fields)
 
     @classmethod
-    def from_run(cls, *, sampler, observables: Observables, sums, histogram, draws, draw_weights, final_state, num_steps, finishing_steps, thin, weights, wall_time, interrupted, draws_note=None) -> SampleResult:
+    def from_run(cls, *, sampler, observables: Observables, sums, histogram, tails, draws, draw_weights, final_state, num_steps, finishing_steps, thin, weights, wall_time, interrupted, draws_note=None, unfinished_tours=0) -> SampleResult:
         to_np = lambda tree: jax.tree.map(np.asarray, tree)
         log_rate = getattr(sampler, "effective_log_rate", getattr(sampler, "log_rate", None))
         result = cls(
@@ -42,12 +52,14 @@ class SampleResult:
             observables=observables,
             sums=to_np(sums),
             histogram=to_np(histogram),
+            tails=None if tails is None else TourTails(*(np.asarray(a) for a in tails)),
             draws=np.asarray(draws),
             draw_weights=np.asarray(draw_weights),
             final_state=to_np(final_state),
             num_lanes=int(np.asarray(sums.all_t).shape[0]),
             num_steps=int(num_steps),
             finishing_steps=int(finishing_steps),
+            unfinished_tours=int(unfinished_tours),
             thin=int(thin),
             weights=weights,
             wall_time=float(wall_time),
@@ -91,9 +103,15 @@ class SampleResult:
         pick = (lambda a: a) if lanes is None else (lambda a: a[lanes])
         if self._default_method(method) == "tours":
             est = tour_ratio(pick(s.sum_f)[:, cut], pick(s.sum_f2)[:, cut], pick(s.sum_ft)[:, cut], pick(s.sum_t), pick(s.sum_t2), pick(s.num_tours))
+            n = int(np.sum(pick(s.num_tours)))
+            tails = self.tails if lanes is None else select_lanes(self.tails, lanes)
+            k_hat = np.array([residual_k(tails, slot.start + j, float(v), n) for j, v in enumerate(est.value.reshape(-1))])
+            est = est._replace(k_hat=k_hat, k_limit=k_hat_limit(n), caveat=self._open_tours_caveat(lanes))
         else:
             est = lane_ratio(pick(s.all_f)[:, cut], pick(s.all_t))
-        return Estimate(est.value.reshape(slot.shape), est.standard_error.reshape(slot.shape))
+        shaped = Estimate(*(np.reshape(a, slot.shape) for a in est[:3]), est.k_limit, est.caveat)
+        _warn_unreliable(f"the estimate of {name!r}", shaped)
+        return shaped
 
     def ess(self, name: str, method: Method | None = None) -> np.ndarray:
         """Effective sample size of each component: `Var_pi(f) / standard_error^2`."""
@@ -106,7 +124,7 @@ class SampleResult:
         se = self.estimate(name, method).standard_error.reshape(-1)
         return (var / se**2).reshape(slot.shape)
 
-    def normalising_constant(self, method: Literal["tours", "importance"] = "tours") -> LogEstimate:
+    def normalising_constant(self, method: Literal["tours", "importance"] = "tours", lanes=None) -> LogEstimate:
         """Estimate of `log Z` with the standard error of the log.
 
         `"tours"`: the mean tour duration is `Z / c_tilde`, so
@@ -117,10 +135,14 @@ class SampleResult:
         With an exit-dependent transfer the tours are dependent (tour starts are still
         `q`-distributed in stationarity, so both estimates stay consistent), and the
         standard error of the `"tours"` estimate is computed over lanes instead.
+
+        `lanes` (an index, slice or mask) restricts the estimate to some lanes, e.g. to
+        form independent replications from one run.
         """
         if not self.has_tours or self.log_rate is None:
             raise ValueError("normalising constants come from Restore runs (with a log_rate)")
-        s = self.sums
+        s = self.sums if lanes is None else type(self.sums)(*(np.asarray(a)[lanes] for a in self.sums))
+        tails = self.tails if lanes is None or self.tails is None else select_lanes(self.tails, lanes)
         if method == "tours":
             n = float(np.sum(s.num_tours))
             if n < 2:
@@ -131,13 +153,37 @@ class SampleResult:
             if self.is_regenerative:
                 sd = math.sqrt(max(T2 / n - mean**2, 0.0) * n / (n - 1))
                 rel_se = sd / (mean * math.sqrt(n))
+                k_hat, k_limit = duration_k(tails, int(n)), k_hat_limit(n)
             else:
-                rel_se = float(lane_ratio(s.sum_t, s.num_tours).standard_error) / mean
-            return LogEstimate(np.asarray(self.log_rate + math.log(mean)), np.asarray(rel_se))
-        if method == "importance":
-            log_z, se = log_mean_exp(s.log_iw_sum, s.log_iw_sum2, float(np.sum(s.num_iw)))
-            return LogEstimate(np.asarray(log_z), np.asarray(se))
-        raise ValueError(f"method must be 'tours' or 'importance', got {method!r}")
+                lanes = lane_ratio(s.sum_t, s.num_tours)
+                rel_se, k_hat, k_limit = float(lanes.standard_error) / mean, lanes.k_hat, lanes.k_limit
+            log_z = np.asarray(self.log_rate + math.log(mean))
+            est = LogEstimate(log_z, np.asarray(rel_se), np.asarray(k_hat), k_limit, self._open_tours_caveat(lanes))
+        elif method == "importance":
+            starts = float(np.sum(s.num_iw))
+            log_z, se = log_mean_exp(s.log_iw_sum, s.log_iw_sum2, starts)
+            k_hat = importance_k(tails, int(starts))
+            est = LogEstimate(np.asarray(log_z), np.asarray(se), np.asarray(k_hat), k_hat_limit(starts))
+        else:
+            raise ValueError(f"method must be 'tours' or 'importance', got {method!r}")
+        _warn_unreliable(f"log Z ({method})", est)
+        return est
+
+    def _open_tours_caveat(self, lanes=None) -> str:
+        """Tours still running at the end were left out: their (long) time is missing from the tours."""
+        if not self.unfinished_tours:
+            return ""
+        s = self.sums
+        open_lanes = (np.asarray(s.open_steps) > 0) & ~np.asarray(s.skip_first)
+        count = int(np.sum(open_lanes if lanes is None else open_lanes[lanes]))
+        if not count:
+            return ""
+        return (
+            f"{count} tour{'s were' if count > 1 else ' was'} still running "
+            f"{self.finishing_steps} steps after the budget ended and left out, so tours can outlast the run and the "
+            "tour-based estimates miss their time (a region "
+            "the regeneration barely covers, such as a missed mode)"
+        )
 
     def tour_statistics(self) -> TourStatistics:
         """Tour count, mean duration against `1/c`, and tail diagnostics of tour lengths."""
@@ -151,7 +197,9 @@ class SampleResult:
             except ValueError:
                 expected = math.nan
         s = self.sums
-        return tour_statistics(s.sum_t, s.sum_t2, s.num_tours, s.max_tour, s.all_t, self.histogram, expected)
+        n = int(np.sum(s.num_tours))
+        k_hat = duration_k(self.tails, n) if self.tails is not None else math.nan
+        return tour_statistics(s.sum_t, s.sum_t2, s.num_tours, s.max_tour, s.all_t, self.histogram, expected, k_hat, self.unfinished_tours)
 
     @property
     def acceptance_rate(self) -> float:
@@ -266,11 +314,13 @@ class SampleResult:
             stats = self.tour_statistics()
             if stats.heavy_tailed:
                 warnings.warn(
-                    f"tour lengths are heavy-tailed: the longest 1% of tours hold {stats.longest_share:.0%} "
-                    f"of the time and the {stats.num_tours} tours are worth {stats.effective_num_tours:.1f} "
-                    "equal ones; estimates are dominated by a few tours. Use a regeneration distribution "
-                    "closer to the target (e.g. restore.regeneration.laplace_mixture)",
-                    RuntimeWarning,
+                    f"tour lengths are heavy-tailed (Pareto shape k_hat = {stats.k_hat:.2f}, limit {stats.k_limit:.2f}; "
+                    f"{stats.unfinished_tours} tours outlasted the run): "
+                    f"the longest 1% of tours hold {stats.longest_share:.0%} of the time and the {stats.num_tours} "
+                    f"tours are worth {stats.effective_num_tours:.1f} equal ones, so estimates are dominated by a few "
+                    "tours and their standard errors cannot be trusted. The regeneration distribution is far from the "
+                    "target: restore.autosample improves it in stages until the tours are healthy",
+                    UnreliableEstimateWarning,
                     stacklevel=3,
                 )
 
@@ -287,12 +337,28 @@ class SampleResult:
             stats = self.tour_statistics()
             lines.append(
                 f"  tours {stats.num_tours}, mean duration {stats.mean_duration:.3f} +- {stats.mean_duration_se:.3f} "
-                f"(expected 1/c = {stats.expected_duration:.3f}), longest 1% hold {stats.longest_share:.1%}"
+                f"(expected 1/c = {stats.expected_duration:.3f}), longest 1% hold {stats.longest_share:.1%}, "
+                f"tail shape k_hat {stats.k_hat:.2f} (limit {stats.k_limit:.2f})"
             )
             if stats.num_tours >= 2:
-                log_z = self.normalising_constant("tours")
-                lines.append(f"  log Z = {float(log_z.value):.4f} +- {float(log_z.standard_error):.4f} (tours)")
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore", UnreliableEstimateWarning)
+                    log_z = self.normalising_constant("tours")
+                verdict = "" if log_z.reliable else f"; UNRELIABLE: {unreliable_reason(log_z)}"
+                lines.append(f"  log Z = {float(log_z.value):.4f} +- {float(log_z.standard_error):.4f} (tours{verdict})")
         return "\n".join(lines)
 
     def __repr__(self) -> str:
         return f"<SampleResult {self.sampler_name}: {self.num_lanes} lanes x {self.num_steps} steps>"
+
+
+def _warn_unreliable(what: str, estimate: Estimate) -> None:
+    """Say in plain words when an estimate's error bar cannot be trusted, and what to do."""
+    if np.all(estimate.reliable):
+        return
+    warnings.warn(
+        f"{what}: the standard error cannot be trusted: {unreliable_reason(estimate)}. Use a regeneration "
+        "distribution closer to the target (restore.autosample builds one in stages), or run longer",
+        UnreliableEstimateWarning,
+        stacklevel=3,
+    )

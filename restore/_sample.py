@@ -18,11 +18,12 @@ from jaxtyping import Array, PRNGKeyArray
 
 from ._accumulators import (
     LaneSums,
-    completed_durations,
+    counted_ends,
     drain_histogram,
     drain_sums,
     init_histogram,
     init_lane_sums,
+    open_tour_totals,
     restart_sums,
     update_histogram,
     update_lane_sums,
@@ -38,6 +39,8 @@ from ._checkpoint import (
 from ._observables import Observables
 from ._progress import console_note, progress_bar
 from ._result import SampleResult
+from ._tails import TourTails, init_tails, keep_largest, tail_depth
+from ._tour_records import TourRecords, emptied, has_room, init_records, record, records_per_lane
 from ._sharding import Devices, LaneSharding, lane_sharding, map_devices, map_lanes, put, to_host
 from ._validation import check_integer
 
@@ -50,6 +53,8 @@ class _Carry(NamedTuple):
     states: Any
     sums: LaneSums
     histogram: tuple[Array, Array]
+    tours: TourRecords
+    tails: TourTails
     draws: Array
     draw_weights: Array
     step: Array
@@ -107,9 +112,10 @@ def _advance(
 
     def cond(loop):
         carry, done = loop
-        if sharding is not None:  # no cross-device reduction per step unless finishing
-            return (done < length) & jax.lax.cond(finishing, lambda: jnp.any(_active(carry)), lambda: jnp.asarray(True))
-        return (done < length) & (~finishing | jnp.any(_active(carry)))
+        room = has_room(carry.tours)  # a lane's tour records are full: stop, the host takes them
+        if sharding is not None:  # no other cross-device reduction per step unless finishing
+            return (done < length) & room & jax.lax.cond(finishing, lambda: jnp.any(_active(carry)), lambda: jnp.asarray(True))
+        return (done < length) & room & (~finishing | jnp.any(_active(carry)))
 
     def body(loop):
         carry, done = loop
@@ -123,11 +129,17 @@ def _advance(
             new_states, info, observed, values = lanes
         on = ~finishing | _active(carry)
         weight = jnp.where(on, info.expected_holding_time if rao_blackwell else info.holding_time, 0.0)
-        durations, ended = completed_durations(carry.sums, weight, info)
+        integrals, durations = open_tour_totals(carry.sums, values, weight)
+        ended = counted_ends(carry.sums, info) & on
         if sharding is None:
-            histogram = update_histogram(carry.histogram, durations, ended & on)
+            histogram = update_histogram(carry.histogram, durations, ended)
         else:  # one partial histogram per device, summed on the host
-            histogram = map_devices(_update_partial_histogram, sharding, carry.histogram, durations, ended & on)
+            histogram = map_devices(_update_partial_histogram, sharding, carry.histogram, durations, ended)
+        tours = carry.tours
+        if tours.capacity > 0:
+            drawn = info.start_drawn & on
+            args = (tours, durations, integrals, ended, info.log_importance_weight, drawn)
+            tours = record(*args) if sharding is None else map_devices(record, sharding, *args)
         keep = lambda new, old: jnp.where(on.reshape((-1,) + (1,) * (new.ndim - 1)), new, old)
         sums = jax.tree.map(keep, update_lane_sums(carry.sums, values, weight, info), carry.sums)
         states = jax.tree.map(keep, new_states, carry.states)
@@ -141,12 +153,17 @@ def _advance(
                 draws,
                 draw_weights,
             )
-        new = _Carry(states, sums, histogram, draws, draw_weights, carry.step + 1)
+        new = _Carry(states, sums, histogram, tours, carry.tails, draws, draw_weights, carry.step + 1)
         if sharding is not None:
             new = jax.lax.with_sharding_constraint(new, _carry_shardings(new, sharding))
         return new, done + 1
 
-    return jax.lax.while_loop(cond, body, (carry, jnp.zeros((), jnp.int32)))
+    carry, done = jax.lax.while_loop(cond, body, (carry, jnp.zeros((), jnp.int32)))
+    if carry.tours.capacity > 0:  # the chunk's tours join each lane's largest
+        args = (carry.tails, carry.tours)
+        tails = keep_largest(*args) if sharding is None else map_devices(keep_largest, sharding, *args)
+        carry = carry._replace(tails=tails, tours=emptied(carry.tours))
+    return carry, done
 
 
 def _observed_step(sampler_and_observe, key, state):
@@ -170,6 +187,8 @@ def _carry_shardings(carry: _Carry, sharding: LaneSharding) -> _Carry:
         states=lanes(carry.states),
         sums=lanes(carry.sums),
         histogram=jax.tree.map(lambda _: sharding.lanes, carry.histogram),  # one row per device
+        tours=lanes(carry.tours),
+        tails=lanes(carry.tails),
         draws=sharding.lanes_second,
         draw_weights=sharding.lanes_second,
         step=sharding.replicated,
@@ -400,6 +419,10 @@ def sample(
         if progress:
             console_note(draws_note)
 
+    chunk = math.ceil(num_steps / min(num_chunks, num_steps))
+    has_tours = bool(getattr(sampler, "has_tours", False))
+    depth = records_per_lane(num_lanes, observe.size, chunk) if has_tours else 0
+
     def start_carry(states):
         histogram = init_histogram(dtype)
         if sharding is not None:  # one partial histogram per device
@@ -408,6 +431,8 @@ def sample(
             states=states,
             sums=init_lane_sums(num_lanes, observe.size, dtype, jnp.full((num_lanes,), positions is not None)),
             histogram=histogram,
+            tours=init_records(num_lanes, observe.size, depth, dtype),
+            tails=init_tails(num_lanes, observe.size, tail_depth(num_lanes, observe.size) if has_tours else 0, dtype),
             draws=jnp.zeros((stored, num_lanes, dim), dtype),
             draw_weights=jnp.zeros((stored, num_lanes), dtype),
             step=jnp.zeros((), jnp.int32),
@@ -421,7 +446,6 @@ def sample(
         layout = _carry_shardings(jax.eval_shape(start_carry, states), sharding)
         carry = jax.jit(start_carry, in_shardings=(layout.states,), out_shardings=layout)(states)
         lane_keys = put(lane_keys, sharding.lanes)
-    chunk = math.ceil(num_steps / min(num_chunks, num_steps))
     rao_blackwell = weights == "rao_blackwell"
 
     saver = None
@@ -460,7 +484,7 @@ def sample(
         advanced, steps_taken = _advance(sampler, observe, run.carry, *args)
         host_sums, host_histogram = to_host((advanced.sums, advanced.histogram))  # waits for the chunk
         sums, histogram = drain_sums(run.sums, host_sums), drain_histogram(run.histogram, host_histogram)
-        return _Run(_restart(advanced, sharding), sums, histogram), steps_taken
+        return _Run(_restart(advanced, sharding), sums, histogram), int(steps_taken)
 
     start, interrupted = time.perf_counter(), False
     elapsed = lambda: spent + time.perf_counter() - start  # noqa: E731
@@ -471,10 +495,11 @@ def sample(
     with progress_bar(num_steps, label, enabled=progress, completed=done) as show:
         try:
             while done < num_steps:
-                length = min(chunk, num_steps - done)
-                run = jax.block_until_ready(advance_and_drain(run, length, False)[0])  # one assignment: all or nothing
+                length = min(chunk, num_steps - done)  # a chunk stops early when a lane's tour records are full
+                advanced = jax.block_until_ready(advance_and_drain(run, length, False))
+                run = advanced[0]  # one assignment: all or nothing
                 done = int(run.carry.step)
-                show(length)
+                show(advanced[1])
                 if saver is not None and (
                     done == num_steps
                     or done >= next_save
@@ -489,8 +514,9 @@ def sample(
                 saver.save(run, done=done, wall_time=elapsed())
             warnings.warn(f"interrupted after {done} of {num_steps} steps; returning the partial result", stacklevel=2)
     if run.sums is None:  # interrupted before the first chunk finished: nothing to report yet
-        run = _Run(run.carry, drain_sums(None, to_host(run.carry.sums)), drain_histogram(None, to_host(run.carry.histogram)))
-    if getattr(sampler, "has_tours", False) and not interrupted and finish_tours and not finished:
+        host = to_host((run.carry.sums, run.carry.histogram))
+        run = run._replace(sums=drain_sums(None, host[0]), histogram=drain_histogram(None, host[1]))
+    if has_tours and not interrupted and finish_tours and not finished:
         try:
             ended, extra = advance_and_drain(run, num_steps, True)
             extra, still_open = int(extra), int(np.sum(_active(ended.carry)))
@@ -505,7 +531,8 @@ def sample(
     if unfinished:
         warnings.warn(
             f"{unfinished} lanes still had an open tour after {finishing_steps} extra steps; those tours are "
-            "left out of the tour-based estimates (tour lengths may be heavy-tailed)",
+            "left out of the tour-based estimates, which are therefore marked unreliable (tours can outlast the "
+            "run: the regeneration barely covers a region where the target has mass)",
             RuntimeWarning,
             stacklevel=2,
         )
@@ -516,6 +543,7 @@ def sample(
         observables=observe,
         sums=run.sums,
         histogram=run.histogram,
+        tails=carry.tails if has_tours else None,
         draws=carry.draws[: min(stored, math.ceil(done / thin))],
         draw_weights=carry.draw_weights[: min(stored, math.ceil(done / thin))],
         final_state=carry.states,
@@ -526,4 +554,5 @@ def sample(
         wall_time=wall_time,
         interrupted=interrupted,
         draws_note=draws_note,
+        unfinished_tours=unfinished,
     )

@@ -31,6 +31,8 @@ def demo(
     import jax
 
     jax.config.update("jax_enable_x64", True)
+    import restore
+
     from ._demo import plot_demo, run_demo
 
     console.print(f"[bold]Target:[/] {dim}-d mixture of 3 well-separated Gaussians, weights 1/6, 2/6, 3/6")
@@ -41,25 +43,40 @@ def demo(
     table.add_column("mode")
     table.add_column("truth", justify="right")
     table.add_column("jump Restore", justify="right")
+    table.add_column("k_hat", justify="right")
     table.add_column("MH mixture", justify="right")
+    table.add_column("k_hat", justify="right")
     for i, truth in enumerate(outcome.truth):
         table.add_row(
             str(i),
             f"{truth:.4f}",
             f"{outcome.restore.value[i]:.4f} ± {outcome.restore.standard_error[i]:.4f}",
+            _k_hat(outcome.restore, i),
             f"{outcome.mh.value[i]:.4f} ± {outcome.mh.standard_error[i]:.4f}",
+            _k_hat(outcome.mh, i),
         )
     rmse = lambda est: float(((est.value - outcome.truth) ** 2).mean() ** 0.5)  # noqa: E731
-    table.add_row("RMSE", "", f"{rmse(outcome.restore):.4f}", f"{rmse(outcome.mh):.4f}", end_section=True)
-    table.add_row("wall time (with compilation)", "", f"{outcome.restore_seconds:.1f} s", f"{outcome.mh_seconds:.1f} s")
+    table.add_row("RMSE", "", f"{rmse(outcome.restore):.4f}", "", f"{rmse(outcome.mh):.4f}", "", end_section=True)
+    table.add_row("wall time (with compilation)", "", f"{outcome.restore_seconds:.1f} s", "", f"{outcome.mh_seconds:.1f} s", "")
     console.print(table)
     stats = outcome.restore_result.tour_statistics()
     console.print(
         f"jump Restore: {stats.num_tours:,} tours, mean duration {stats.mean_duration:.2f} ± {stats.mean_duration_se:.2f} "
-        f"(1/c = {stats.expected_duration:.2f}); log Z = {float(outcome.log_z.value):.4f} ± {float(outcome.log_z.standard_error):.4f} (truth 0)"
+        f"(1/c = {stats.expected_duration:.2f}); log Z = {float(outcome.log_z.value):.4f} ± {float(outcome.log_z.standard_error):.4f} "
+        f"(truth 0), tail shape of the tours k_hat = {float(outcome.log_z.k_hat):.2f}"
     )
-    console.print("± is one standard error (Restore: regenerative, over tours; MH: over independent lanes).")
+    console.print(
+        "± is one standard error (Restore: regenerative, over tours; MH: over independent lanes). k_hat is the Pareto "
+        f"shape of the tail of the terms each estimate sums: at or above {restore.K_HAT_LIMIT} (fewer terms: lower) the "
+        "error bar is not trusted and the estimate is marked [red]*[/]."
+    )
     console.print(f"Plot written to {plot_demo(outcome, out)}")
+
+
+def _k_hat(estimate, i: int) -> str:
+    """`k_hat` of component `i`, starred in red when its error bar cannot be trusted."""
+    k = float(estimate.k_hat[i])
+    return f"{k:.2f}" + ("" if bool(estimate.reliable[i]) else " [red]*[/]")
 
 
 def _names(text: str | None) -> tuple[str, ...] | None:

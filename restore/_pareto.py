@@ -1,0 +1,105 @@
+"""The Pareto shape `k_hat` of a tail: is the variance of a sum of such values finite?
+
+A sum of i.i.d. terms has a normal limit with the usual standard error only when the
+terms have finite variance. Fitting a generalised Pareto distribution (GPD) to the
+largest terms estimates the tail shape `k`: the `m`-th moment exists for `k < 1/m`, so
+the variance is finite for `k < 1/2` and the mean itself for `k < 1`. This is the
+diagnostic of Pareto-smoothed importance sampling (Vehtari, Simpson, Gelman, Yao and
+Gabry, JMLR 2024), applied here to tour durations, per-tour residuals of observables and
+importance weights. The fit is the empirical-Bayes estimate of Zhang and Stephens (2009)
+with PSIS's weakly informative prior on `k`, the same as ArviZ's `psislw`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+#: Above this `k_hat` an error bar is not trusted, whatever the sample size: the variance of
+#: the terms is infinite (`k >= 1/2`), so the central-limit standard error is meaningless.
+K_HAT_LIMIT = 0.5
+#: Fewer terms than this and no tail can be fitted (PSIS needs at least five tail values).
+MIN_TERMS = 25
+
+
+def tail_length(n: int) -> int:
+    """How many of the largest of `n` terms PSIS fits: `ceil(min(n / 5, 3 sqrt(n)))`."""
+    return math.ceil(min(n / 5.0, 3.0 * math.sqrt(n)))
+
+
+def k_hat_limit(n: float) -> float:
+    """The largest `k_hat` at which an estimate from `n` terms is trusted.
+
+    `min(K_HAT_LIMIT, 1 - 1 / log10(n))`: the second term is PSIS's sample-size bound
+    (with few terms even a light tail is estimated too poorly), the first the
+    finite-variance bound of a plain (unsmoothed) sum.
+    """
+    if not n > 10:
+        return -math.inf
+    return min(K_HAT_LIMIT, 1.0 - 1.0 / math.log10(n))
+
+
+def gpd_shape(exceedances: np.ndarray) -> float:
+    """Empirical-Bayes estimate of the GPD shape `k` from exceedances over a threshold.
+
+    Arguments:
+        exceedances: positive values above the threshold (any order), at least 5.
+
+    Returns:
+        The shape `k_hat`, shrunk towards 1/2 by PSIS's prior (10 pseudo-observations).
+    """
+    x = np.sort(np.asarray(exceedances, np.float64))
+    n = x.size
+    if n < 5:
+        raise ValueError(f"a GPD fit needs at least 5 exceedances, got {n}")
+    if not x[-1] > 0:
+        return 0.0
+    m = 30 + int(math.sqrt(n))
+    b = 1.0 - np.sqrt(m / (np.arange(1, m + 1, dtype=np.float64) - 0.5))
+    quartile = x[int(n / 4 + 0.5) - 1]
+    b = b / (3.0 * quartile) + 1.0 / x[-1] if quartile > 0 else 1.0 / x[-1] + 0.0 * b
+    k = np.log1p(-b[:, None] * x).mean(axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        profile = n * (np.log(-(b / k)) - k - 1.0)
+    profile = np.where(np.isfinite(profile), profile, -np.inf)
+    weights = np.exp(profile - profile.max())
+    weights /= weights.sum()
+    keep = weights >= 10 * np.finfo(np.float64).eps
+    b_post = np.sum(b[keep] * weights[keep]) / np.sum(weights[keep])
+    k_post = float(np.log1p(-b_post * x).mean())
+    return (n * k_post + 10 * 0.5) / (n + 10)
+
+
+def pareto_k(largest: np.ndarray, n: int) -> float:
+    """`k_hat` of a sample of `n` terms, given (at least) its largest terms.
+
+    Arguments:
+        largest: the largest values of the sample, any order; only the top
+            `tail_length(n) + 1` are used (fewer if fewer are given: then the smallest
+            given value is the threshold). Non-finite values must not be among them.
+        n: the size of the whole sample.
+
+    Returns:
+        `k_hat`, or NaN when fewer than `MIN_TERMS` terms or 6 largest values are at hand.
+    """
+    top = np.sort(np.asarray(largest, np.float64).reshape(-1))[::-1]
+    if n < MIN_TERMS or top.size < 6:
+        return math.nan
+    if not np.all(np.isfinite(top)):
+        raise ValueError("pareto_k needs finite values")
+    top = top[: tail_length(n) + 1]
+    threshold = top[-1]
+    exceedances = top[:-1] - threshold
+    if not exceedances[0] > 0:  # a flat top: no tail at all
+        return 0.0
+    return gpd_shape(exceedances)
+
+
+def pareto_k_log(log_largest: np.ndarray, n: int) -> float:
+    """`pareto_k` of `exp(log_largest)`, computed without overflow (for importance weights)."""
+    log_top = np.asarray(log_largest, np.float64).reshape(-1)
+    log_top = log_top[np.isfinite(log_top)]
+    if log_top.size == 0:
+        return math.nan
+    return pareto_k(np.exp(log_top - log_top.max()), n)

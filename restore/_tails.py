@@ -1,0 +1,165 @@
+"""The largest tours of every lane, and the tail shapes `k_hat` read off them.
+
+Each lane keeps (on the device, updated once per chunk from the chunk's tour records) its
+`K` longest tours with their observable integrals `F`, for each observable component `j`
+its `K` tours of largest `|F_j|` with their durations, and its `K` largest importance
+weights `p(y) / q(y)` at tour starts. These are exact per-lane top sets, so after the run
+the largest values of the whole run (or of any group of lanes) are known exactly above a
+bound, and the Pareto shape of each tail that matters can be fitted (`_pareto`):
+
+- the tour durations `T` (the `"tours"` estimate of `log Z` is their mean);
+- the residuals `|F_j - pi_hat_j T|` of the ratio estimator of each component (or, when
+  too few of the largest residuals are certain, the heavier of the tails of `|F_j|` and
+  `T`, which bounds it);
+- the importance weights (the `"importance"` estimate of `log Z`).
+
+A lane whose set is full has no other value above its set's smallest one, so every value
+above the largest such minimum over lanes is in the sets. For residuals, which depend on
+the final `pi_hat`, a tour outside both of its lane's sets has
+`|F_j - pi_hat T| <= min |F_j| + |pi_hat| min T` of that lane's sets.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from ._pareto import pareto_k, pareto_k_log, tail_length
+from ._tour_records import TourRecords
+
+#: Per-lane top sets are capped so that they hold at most this many numbers in all.
+MAX_TAIL_ELEMENTS = 2**22
+#: At most this many values per lane and tail.
+MAX_TAIL_PER_LANE = 64
+
+
+class TourTails(NamedTuple):
+    """Each lane's largest tours (`-inf` durations mark unused slots).
+
+    Attributes:
+        duration: `(L, K)` the lane's longest tour durations.
+        duration_integral: `(L, K, m)` the observable integrals of those tours.
+        integral: `(L, m, K)` per component `j`, the integrals `F_j` of largest `|F_j|`.
+        integral_duration: `(L, m, K)` the durations of those tours.
+        log_importance_weight: `(L, K)` the largest log importance weights at tour starts.
+    """
+
+    duration: Float[Array, "L K"]
+    duration_integral: Float[Array, "L K m"]
+    integral: Float[Array, "L m K"]
+    integral_duration: Float[Array, "L m K"]
+    log_importance_weight: Float[Array, "L K"]
+
+
+def tail_depth(num_lanes: int, size: int) -> int:
+    """`K`: as many values per lane as the memory cap allows, between 8 and 64."""
+    return int(max(8, min(MAX_TAIL_PER_LANE, MAX_TAIL_ELEMENTS // max(num_lanes * (3 * size + 2), 1))))
+
+
+def init_tails(num_lanes: int, size: int, depth: int, dtype) -> TourTails:
+    """Empty sets (depth 0 for samplers without tours)."""
+    ninf = jnp.full((num_lanes, depth), -jnp.inf, dtype)
+    return TourTails(
+        ninf,
+        jnp.zeros((num_lanes, depth, size), dtype),
+        jnp.zeros((num_lanes, size, depth), dtype),
+        jnp.full((num_lanes, size, depth), -jnp.inf, dtype),
+        ninf,
+    )
+
+
+def keep_largest(tails: TourTails, records: TourRecords) -> TourTails:
+    """Each lane's top sets with the tours and starts of its records added (jitted, per chunk)."""
+    depth = tails.duration.shape[1]
+    if depth == 0:
+        return tails
+    slots = jnp.arange(records.capacity)
+    ended = slots[None, :] < records.count[:, None]
+    new_duration = jnp.where(ended, records.duration, -jnp.inf)
+
+    duration = jnp.concatenate([tails.duration, new_duration], axis=1)
+    kept, index = jax.lax.top_k(duration, depth)
+    integrals = jnp.concatenate([tails.duration_integral, records.integral], axis=1)
+    duration_integral = jnp.take_along_axis(integrals, index[:, :, None], axis=1)
+
+    new_integral = jnp.swapaxes(records.integral, 1, 2)  # (L, m, R)
+    integral = jnp.concatenate([tails.integral, new_integral], axis=2)
+    shape = new_integral.shape
+    integral_duration = jnp.concatenate([tails.integral_duration, jnp.broadcast_to(new_duration[:, None, :], shape)], axis=2)
+    score = jnp.where(jnp.isfinite(integral_duration), jnp.abs(integral), -jnp.inf)
+    _, by_size = jax.lax.top_k(score, depth)
+
+    started = slots[None, :] < records.starts[:, None]
+    weights = jnp.concatenate([tails.log_importance_weight, jnp.where(started, records.log_importance_weight, -jnp.inf)], axis=1)
+    weights = jnp.where(jnp.isnan(weights), -jnp.inf, weights)
+    return TourTails(
+        kept,
+        duration_integral,
+        jnp.take_along_axis(integral, by_size, axis=2),
+        jnp.take_along_axis(integral_duration, by_size, axis=2),
+        jax.lax.top_k(weights, depth)[0],
+    )
+
+
+# ---------------------------------------------------------------------------- after the run (numpy)
+def _largest(values: np.ndarray) -> np.ndarray:
+    """The entries of per-lane top sets `(L, K)` (`-inf` unused) certain to be among the largest of all lanes.
+
+    A lane whose set is full has no other value above its set's smallest one, so every
+    value above the largest such minimum is in the sets.
+    """
+    values = np.asarray(values, np.float64)
+    full = np.all(np.isfinite(values), axis=1)
+    bound = np.max(np.min(values[full], axis=1)) if np.any(full) else -np.inf
+    flat = values[np.isfinite(values)]
+    return flat[flat > bound]
+
+
+def duration_k(tails: TourTails, num_tours: int) -> float:
+    """`k_hat` of the tour durations."""
+    return pareto_k(_largest(tails.duration), num_tours)
+
+
+def importance_k(tails: TourTails, num_starts: int) -> float:
+    """`k_hat` of the importance weights at tour starts."""
+    return pareto_k_log(_largest(tails.log_importance_weight), num_starts)
+
+
+def residual_k(tails: TourTails, column: int, value: float, num_tours: int) -> float:
+    """`k_hat` of the residuals `|F_j - value * T|` of component `column` of the observables."""
+    d = np.asarray(tails.duration, np.float64)
+    if d.shape[1] == 0:
+        return math.nan
+    f_long = np.asarray(tails.duration_integral[:, :, column], np.float64)
+    f_big = np.asarray(tails.integral[:, column, :], np.float64)
+    t_big = np.asarray(tails.integral_duration[:, column, :], np.float64)
+    lanes = np.arange(d.shape[0])[:, None]
+    rows = np.concatenate(
+        [
+            np.stack([np.broadcast_to(lanes, d.shape), d, f_long], axis=-1).reshape(-1, 3),
+            np.stack([np.broadcast_to(lanes, t_big.shape), t_big, f_big], axis=-1).reshape(-1, 3),
+        ]
+    )
+    rows = np.unique(rows[np.isfinite(rows[:, 1])], axis=0)  # a tour in both sets of its lane counts once
+    residual = np.abs(rows[:, 2] - value * rows[:, 1])
+    full = np.all(np.isfinite(d), axis=1)
+    floor = np.min(np.abs(f_big), axis=1) + abs(value) * np.min(d, axis=1)
+    bound = np.max(floor[full]) if np.any(full) else -np.inf
+    certain = residual[residual > bound]
+    if certain.size > tail_length(num_tours):
+        return pareto_k(certain, num_tours)
+    # Too few residuals are certain to be the largest: bound the tail instead. Since
+    # |F - pi T| <= |F| + |pi| T, the residuals' tail is no heavier than the heavier of
+    # the tails of |F_j| and T, each known exactly from its own set.
+    k_size = pareto_k(_largest(np.where(np.isfinite(t_big), np.abs(f_big), -np.inf)), num_tours)
+    return max(k_size, duration_k(tails, num_tours))
+
+
+def select_lanes(tails: TourTails, lanes) -> TourTails:
+    """The sets of some lanes (an index, slice or mask), for estimates from groups of lanes."""
+    return TourTails(*(np.asarray(a)[lanes] for a in tails))

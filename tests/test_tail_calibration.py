@@ -1,0 +1,85 @@
+"""Calibration in the hard regime: with deliberately poor regenerations, the estimates marked
+reliable still cover the truth, and every confidently wrong one is marked unreliable."""
+
+import math
+import warnings
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jax.scipy.special import gammaln
+from scipy import stats
+
+import restore
+from restore.regeneration import Gaussian
+
+pytestmark = pytest.mark.slow
+
+
+def _replications(result, lanes_per, count, estimate):
+    """`(z, reliable)` of `estimate(result, lanes)` over `count` disjoint groups of lanes."""
+    z, reliable = [], []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", restore.UnreliableEstimateWarning)
+        for r in range(count):
+            est, truth = estimate(slice(r * lanes_per, (r + 1) * lanes_per))
+            z.append(float(np.ravel(est.z_score(truth))[0]))
+            reliable.append(bool(np.all(est.reliable)))
+    return np.array(z), np.array(reliable)
+
+
+def test_reliable_error_bars_cover_the_truth_under_a_poor_regeneration():
+    """A Student-t target (df 4) regenerated from a narrow Gaussian: tours that wander into the heavy
+    tails live long, so some replications have heavy-tailed terms. Those marked reliable cover at 95% +- 3%."""
+    df = 4.0
+
+    def logdensity(x):
+        return gammaln((df + 1) / 2) - gammaln(df / 2) - 0.5 * math.log(df * math.pi) - (df + 1) / 2 * jnp.log1p(x[0] ** 2 / df)
+
+    sampler = restore.JumpRestore(logdensity, restore.local.RandomWalk(1.0), Gaussian(jnp.zeros(1), 0.49), tour_length=3.0)
+    observables = {"x": lambda x: x, "tail": lambda x: (x[0] > 1.0).astype(x.dtype)[None]}
+    replications, lanes = 200, 16
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        result = restore.sample(
+            sampler, jax.random.key(0), num_lanes=replications * lanes, num_steps=1000, max_draws=0, progress=False,
+            observables=observables,
+        )  # fmt: skip
+    truths = {"x": 0.0, "tail": float(stats.t.sf(1.0, df))}
+    checks = {name: (lambda lanes, name=name: (result.estimate(name, lanes=lanes), truths[name])) for name in truths}
+    checks["log Z"] = lambda lanes: (result.normalising_constant(lanes=lanes), 0.0)
+    flagged = 0
+    for name, estimate in checks.items():
+        z, reliable = _replications(result, lanes, replications, estimate)
+        coverage = np.mean(np.abs(z[reliable]) < stats.norm.isf(0.025))
+        assert reliable.sum() >= 50, (name, reliable.sum())
+        assert abs(coverage - 0.95) <= 0.03, (name, coverage, reliable.sum())
+        assert not np.any((np.abs(z) > 5) & reliable), name
+        flagged += np.sum(~reliable)
+    assert flagged >= 100  # the regeneration is poor: the diagnostic is at work
+
+
+def test_every_confidently_wrong_replication_is_flagged():
+    """Negative control for the diagnostic: a regeneration that covers one of two modes. Almost every
+    replication misses half the mass by many standard errors; every such replication must be marked."""
+
+    def logdensity(x):
+        return jnp.logaddexp(-0.5 * jnp.sum((x - 2.5) ** 2), -0.5 * jnp.sum((x + 2.5) ** 2)) - math.log(4 * math.pi)
+
+    sampler = restore.JumpRestore(logdensity, restore.local.RandomWalk(1.0), Gaussian(-2.5 * jnp.ones(2), 1.0), tour_length=4.0)
+    replications, lanes = 100, 32
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        result = restore.sample(
+            sampler, jax.random.key(0), num_lanes=replications * lanes, num_steps=400, max_draws=0, progress=False,
+            observables={"right": lambda x: (x[0] > 0).astype(x.dtype)[None]},
+        )  # fmt: skip
+    for estimate in (
+        lambda lanes: (result.estimate("right", lanes=lanes), 0.5),
+        lambda lanes: (result.normalising_constant(lanes=lanes), 0.0),
+    ):
+        z, reliable = _replications(result, lanes, replications, estimate)
+        wrong = np.abs(z) > 5
+        assert wrong.sum() >= 80  # the poor regeneration does give confident wrong answers...
+        assert not np.any(wrong & reliable)  # ...and every one of them is marked
