@@ -11,32 +11,59 @@ regeneration distribution with density `u`. Every distribution here is an
   `-inf` outside the support; jit/vmap/grad-able.
 
 Available: `Gaussian`, `StudentT`, `UniformBox`, `UniformTorus`, `Mixture`,
-and `laplace_mixture` (with `find_modes` / `LaplaceModes` /
-`mixture_from_modes`) which builds a mixture of Laplace approximations at the
-modes of a target found by multi-start optimisation.
+`DiagonalMixture` (axis-aligned components, `O(K d)` per evaluation),
+`ProductMixture` (a product of one-dimensional mixtures), and `laplace_mixture`
+(with `find_modes` / `LaplaceModes` / `mixture_from_modes`) which builds a
+mixture of Laplace approximations at the modes of a target found by multi-start
+optimisation. `fit_mixture`, `fit_product` and `choose_regeneration` fit
+regenerations to weighted draws of the target (what `restore.autosample` does
+in stages).
 """
 
 from ._base import AbstractRegeneration as AbstractRegeneration
+from ._choose import Candidate as Candidate
+from ._choose import Choice as Choice
+from ._choose import choose_regeneration as choose_regeneration
+from ._diagonal_mixture import DiagonalMixture as DiagonalMixture
+from ._fit import Fit as Fit
+from ._fit import fit_mixture as fit_mixture
+from ._fit import fit_product as fit_product
 from ._gaussian import Gaussian as Gaussian
 from ._laplace import (
     LaplaceModes as LaplaceModes,
+)
+from ._laplace import (
     find_modes as find_modes,
+)
+from ._laplace import (
     laplace_mixture as laplace_mixture,
+)
+from ._laplace import (
     mixture_from_modes as mixture_from_modes,
 )
 from ._mixture import Mixture as Mixture
+from ._product_mixture import ProductMixture as ProductMixture
 from ._student_t import StudentT as StudentT
-from ._uniform import UniformBox as UniformBox, UniformTorus as UniformTorus
+from ._uniform import UniformBox as UniformBox
+from ._uniform import UniformTorus as UniformTorus
 
 __all__ = [
     "AbstractRegeneration",
+    "Candidate",
+    "Choice",
+    "DiagonalMixture",
+    "Fit",
     "Gaussian",
     "LaplaceModes",
     "Mixture",
+    "ProductMixture",
     "StudentT",
     "UniformBox",
     "UniformTorus",
+    "choose_regeneration",
     "find_modes",
+    "fit_mixture",
+    "fit_product",
     "laplace_mixture",
     "mixture_from_modes",
 ]

@@ -1,0 +1,156 @@
+"""Fitted regeneration families: exact densities and draws, weighted fits, and the held-out choice."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy import stats
+
+from restore.regeneration import (
+    DiagonalMixture,
+    Gaussian,
+    Mixture,
+    ProductMixture,
+    StudentT,
+    choose_regeneration,
+    fit_mixture,
+    fit_product,
+)
+
+KEY = jax.random.key(3)
+
+
+@pytest.mark.parametrize("df", [None, 4.0, 7.5])
+def test_diagonal_mixture_matches_the_general_mixture(df):
+    means = jnp.asarray([[0.0, 1.0, -2.0], [3.0, -1.0, 0.5]])
+    scales = jnp.asarray([[1.0, 0.5, 2.0], [0.3, 1.5, 1.0]])
+    weights = jnp.asarray([0.3, 0.7])
+    fast = DiagonalMixture(weights, means, scales, df)
+    make = (lambda m, s: Gaussian(m, s**2)) if df is None else (lambda m, s: StudentT(m, s**2, df))
+    slow = Mixture([make(m, s) for m, s in zip(means, scales)], weights)
+    points = jax.random.normal(KEY, (20, 3)) * 3
+    np.testing.assert_allclose(jax.vmap(fast.log_prob)(points), jax.vmap(slow.log_prob)(points), rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("df", [None, 5.0])
+def test_diagonal_mixture_draws_follow_its_density(df):
+    dist = DiagonalMixture(jnp.asarray([0.25, 0.75]), jnp.asarray([[-3.0, 0.0], [2.0, 1.0]]), jnp.asarray([[0.5, 1.0], [1.0, 2.0]]), df)
+    draws = np.asarray(dist.sample(KEY, (20_000,)))
+    assert draws.shape == (20_000, 2)
+
+    def cdf(t):  # coordinate 0: a two-component mixture of (scaled) normals or t's
+        base = stats.norm if df is None else stats.t(df)
+        return 0.25 * base.cdf((t + 3.0) / 0.5) + 0.75 * base.cdf((t - 2.0) / 1.0)
+
+    assert stats.kstest(draws[:, 0], cdf).pvalue > 1e-3
+
+
+def test_product_mixture_density_and_draws():
+    weights = jnp.asarray([[0.85, 0.15], [0.5, 0.5], [1.0, 1e-3]])
+    means = jnp.asarray([[1.7, -1.7], [0.0, 4.0], [2.0, -2.0]])
+    scales = jnp.asarray([[0.4, 0.4], [1.0, 0.5], [1.0, 1.0]])
+    dist = ProductMixture(weights, means, scales)
+    w = np.asarray(weights) / np.asarray(weights).sum(axis=1, keepdims=True)
+
+    def marginal_logpdf(j, t):
+        return np.log(sum(w[j, k] * stats.norm.pdf(t, means[j, k], scales[j, k]) for k in range(2)))
+
+    x = np.asarray(jax.random.normal(KEY, (10, 3)) * 2)
+    expected = sum(marginal_logpdf(j, x[:, j]) for j in range(3))
+    np.testing.assert_allclose(jax.vmap(dist.log_prob)(jnp.asarray(x)), expected, rtol=1e-10)
+    draws = np.asarray(dist.sample(KEY, (20_000,)))
+    for j in range(3):
+        cdf = lambda t, j=j: sum(w[j, k] * stats.norm.cdf(t, means[j, k], scales[j, k]) for k in range(2))  # noqa: E731
+        assert stats.kstest(draws[:, j], cdf).pvalue > 1e-3
+    assert abs(np.mean(draws[:, 0] > 0) - 0.85) < 0.02
+
+
+def test_bad_parameters_are_refused():
+    with pytest.raises(ValueError, match="scales"):
+        DiagonalMixture([1.0], [[0.0, 0.0]], [[1.0, -1.0]])
+    with pytest.raises(ValueError, match="weights"):
+        ProductMixture([[1.0, 0.0]], [[0.0, 1.0]], [[1.0, 1.0]])
+    with pytest.raises(ValueError, match="df"):
+        DiagonalMixture([1.0], [[0.0]], [[1.0]], df=0.5)
+    with pytest.raises(ValueError, match="num_components"):
+        fit_mixture(np.zeros((10, 2)), np.ones(10), 0)
+    with pytest.raises(ValueError, match="shape"):
+        fit_product(np.zeros((10, 2)), np.ones(9), 2)
+
+
+def _weighted_bimodal(n=8000, seed=0):
+    """Importance-weighted draws of 0.3 N((-3, 0), I) + 0.7 N((3, 1), diag(0.25, 4)) from a broad proposal."""
+    rng = np.random.default_rng(seed)
+    x = rng.normal(0.0, 4.0, (n, 2))
+    p = 0.3 * stats.multivariate_normal([-3, 0], np.eye(2)).pdf(x) + 0.7 * stats.multivariate_normal([3, 1], np.diag([0.25, 4])).pdf(x)
+    q = stats.multivariate_normal([0, 0], 16 * np.eye(2)).pdf(x)
+    return x, p / q
+
+
+@pytest.mark.parametrize("covariance", ["full", "diagonal"])
+def test_weighted_em_recovers_a_mixture(covariance):
+    x, w = _weighted_bimodal()
+    fit = fit_mixture(x, w, 2, covariance=covariance, seed=1)
+    dist = fit.distribution
+    if covariance == "diagonal":
+        means, weights = np.asarray(dist.means), np.exp(np.asarray(dist.log_weights))
+    else:
+        means, weights = np.array([np.asarray(c.mean) for c in dist.components]), np.asarray(dist.weights)
+    order = np.argsort(means[:, 0])
+    np.testing.assert_allclose(means[order], [[-3, 0], [3, 1]], atol=0.25)
+    np.testing.assert_allclose(weights[order], [0.3, 0.7], atol=0.05)
+    y = x[:50]
+    np.testing.assert_allclose(fit.log_prob(y), jax.vmap(dist.log_prob)(jnp.asarray(y)), rtol=1e-10)
+
+
+def test_weighted_product_fit_recovers_unequal_wells():
+    rng = np.random.default_rng(2)
+    n, d = 6000, 4
+    signs = rng.uniform(size=(n, d)) < 0.5  # draws with equal wells...
+    x = np.where(signs, 1.7, -1.7) + 0.3 * rng.standard_normal((n, d))
+    w = np.prod(np.where(signs, 0.85, 0.15) / 0.5, axis=1)  # ...weighted to wells of 0.85 / 0.15
+    fit = fit_product(x, w, 2)
+    draws = np.asarray(fit.distribution.sample(KEY, (20_000,)))
+    np.testing.assert_allclose(np.mean(draws > 0, axis=0), 0.85, atol=0.03)
+    np.testing.assert_allclose(fit.log_prob(x[:20]), jax.vmap(fit.distribution.log_prob)(jnp.asarray(x[:20])), rtol=1e-10)
+
+
+def test_choice_follows_the_structure_of_the_draws():
+    rng = np.random.default_rng(4)
+    groups = np.repeat(np.arange(40), 200)
+    # 8 independent bimodal coordinates: 256 modes in product form
+    product = np.where(rng.uniform(size=(8000, 8)) < 0.7, 2.0, -2.0) + 0.4 * rng.standard_normal((8000, 8))
+    chosen = choose_regeneration(product, np.ones(8000), groups)
+    assert chosen.fit.family == "product", chosen.candidates
+    # one strongly correlated Gaussian: a full covariance is worth its cost
+    cov = np.array([[1.0, 0.95, 0.0], [0.95, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    correlated = rng.multivariate_normal(np.zeros(3), cov, 8000)
+    chosen = choose_regeneration(correlated, np.ones(8000), groups)
+    assert chosen.fit.family.startswith("full"), chosen.candidates
+    # 40 separated modes in 2-d: many components
+    centres = rng.uniform(-40, 40, (40, 2))
+    spread = centres[rng.integers(0, 40, 8000)] + rng.standard_normal((8000, 2))
+    chosen = choose_regeneration(spread, np.ones(8000), groups)
+    assert chosen.fit.num_components >= 32, chosen.candidates
+    best = max(c.score for c in chosen.candidates)
+    assert all(c.score <= best for c in chosen.candidates)
+
+
+def test_choice_needs_several_groups():
+    with pytest.raises(ValueError, match="groups"):
+        choose_regeneration(np.zeros((100, 2)), np.ones(100), np.zeros(100))
+    with pytest.raises(ValueError, match="families"):
+        choose_regeneration(np.zeros((100, 2)), np.ones(100), np.arange(100), families=("flows",))
+
+
+def test_fit_densities_are_normalised():
+    x, w = _weighted_bimodal(3000)
+    for fit in (fit_mixture(x, w, 3, df=5.0), fit_mixture(x, w, 2, covariance="diagonal", df=5.0), fit_product(x, w, 3)):
+        grid = np.linspace(-30, 30, 601)
+        gx, gy = np.meshgrid(grid, grid)
+        points = np.stack([gx.ravel(), gy.ravel()], axis=1)
+        mass = np.exp(fit.log_prob(points)).sum() * (grid[1] - grid[0]) ** 2
+        assert mass == pytest.approx(1.0, abs=0.01), fit.family
+        assert math.isfinite(fit.cost) and fit.cost > 0
