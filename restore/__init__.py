@@ -13,6 +13,9 @@ from . import dynamics as dynamics
 from . import local as local
 from . import regeneration as regeneration
 from . import transfer as transfer
+from ._autosample import AutoResult as AutoResult
+from ._autosample import StageReport as StageReport
+from ._autosample import autosample as autosample
 from ._bounds import MinimalRate as MinimalRate
 from ._bounds import RateBound as RateBound
 from ._bounds import minimal_log_rate as minimal_log_rate

@@ -1,0 +1,398 @@
+"""`autosample`: one call from a log density and what the user knows to a healthy Restore run.
+
+Restore is exact for any regeneration distribution `u` that covers the target, but its
+efficiency, and whether its error bars mean anything, depends on how close `u` is to the
+target. `autosample` builds `u` in stages, population-Monte-Carlo style:
+
+1. **Seeding.** Short adaptive chains from starts drawn from what the user knows (a box,
+   a scale, a prior) find where the mass is (`_seeding`). No mode is needed.
+2. **Stages.** Fit a regeneration to the latest draws (the family and size chosen by
+   held-out likelihood, `restore.regeneration.choose_regeneration`), mix in a broad
+   defensive component built from the user's knowledge (so `u` covers the target), and
+   run jump Restore with that `u` frozen. Each stage is an exact Restore run; its
+   tour-weighted draws are draws of the target, and the next stage is fitted to them.
+3. **Stop** when a stage's tours are healthy: the Pareto shape `k_hat` of the tour
+   durations and of the importance weights is small, so the tours are close to i.i.d.
+   exponential and the error bars can be trusted.
+4. **Final run.** A fresh run with the chosen `u` frozen before it starts, with the full
+   budget and the user's observables. Its estimates are the result; the stages only
+   chose `u`. Because `u` is fixed before the final run begins, its tours are i.i.d. given
+   `u`, and the regenerative central limit theorem applies exactly as for a hand-built
+   regeneration. Pooling the stages would add tours whose regenerations were chosen by
+   looking at those same tours, and early stages are heavy-tailed by design, so they are
+   not pooled.
+
+If no stage becomes healthy within `max_stages`, the final run uses the stage with the
+lightest tail, and its estimates carry the diagnostics that say their error bars cannot
+be trusted. It never raises because the target has no mode or too many of them.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import warnings
+from collections.abc import Callable, Mapping, Sequence
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, PRNGKeyArray
+
+from ._jump_restore import JumpRestore
+from ._pareto import K_HAT_LIMIT
+from ._progress import console_note
+from ._result import SampleResult
+from ._sample import sample
+from ._seeding import seed_draws
+from ._validation import check_integer, check_logdensity
+from .local import AbstractLocalKernel, RandomWalk
+from .regeneration import (
+    AbstractRegeneration,
+    DiagonalMixture,
+    Mixture,
+    ProductMixture,
+    StudentT,
+    UniformBox,
+    choose_regeneration,
+)
+from .regeneration._choose import FAMILIES
+
+#: A stage is healthy when the tail shape of its tour durations is below this...
+HEALTHY_DURATION_K = 0.3
+#: ...and that of its importance weights below this.
+HEALTHY_IMPORTANCE_K = K_HAT_LIMIT
+#: Degrees of freedom of the defensive component built from a box or a scale.
+DEFENSIVE_DF = 3.0
+
+
+class StageReport(NamedTuple):
+    """What one stage of `autosample` did and found.
+
+    Attributes:
+        stage: 0 for the seeding chains, then 1, 2, ... for Restore stages.
+        kind: `"seed"`, `"adapt"` (a Restore stage that chose the next regeneration)
+            or `"final"`.
+        family: the regeneration family of the stage (`"chains"` for seeding).
+        num_components: its number of components.
+        evaluations: log-density evaluations spent by the stage (pilot included).
+        wall_time: seconds, compilation included.
+        duration_k_hat: Pareto shape of the tour durations (NaN for seeding).
+        importance_k_hat: Pareto shape of the importance weights at tour starts.
+        effective_tours: effective number of tours as a share of the tours.
+        log_z: the stage's `log Z` estimate from its tours (NaN for seeding).
+        log_z_se: its standard error.
+        healthy: the stage's tails are light enough to stop adapting.
+    """
+
+    stage: int
+    kind: str
+    family: str
+    num_components: int
+    evaluations: int
+    wall_time: float
+    duration_k_hat: float
+    importance_k_hat: float
+    effective_tours: float
+    log_z: float
+    log_z_se: float
+    healthy: bool
+
+
+class AutoResult:
+    """What `autosample` returns: the final run's result, the chosen regeneration and the stages.
+
+    `estimate`, `normalising_constant`, `tour_statistics`, `ess`, `estimate_draws`,
+    `to_arviz` and `summary` are those of the final run (`result`), whose estimates carry
+    the tail diagnostic `k_hat` and say whether their error bars can be trusted.
+
+    Attributes:
+        result: the final run's `SampleResult`.
+        sampler: the final `JumpRestore` sampler.
+        regeneration: the chosen regeneration distribution (defensive component included).
+        stages: a `StageReport` per stage, the final run last.
+        evaluations: log-density evaluations of all stages together.
+        wall_time: seconds for the whole call.
+        healthy: whether a stage reached healthy tails before the final run.
+    """
+
+    def __init__(self, result, sampler, regeneration, stages, evaluations, wall_time, healthy):
+        self.result: SampleResult = result
+        self.sampler: JumpRestore = sampler
+        self.regeneration: AbstractRegeneration = regeneration
+        self.stages: tuple[StageReport, ...] = tuple(stages)
+        self.evaluations: int = int(evaluations)
+        self.wall_time: float = float(wall_time)
+        self.healthy: bool = bool(healthy)
+
+    def estimate(self, name: str, method=None, lanes=None):
+        """The final run's estimate of the observable `name` (see `SampleResult.estimate`)."""
+        return self.result.estimate(name, method=method, lanes=lanes)
+
+    def normalising_constant(self, method="tours"):
+        """The final run's estimate of `log Z` (see `SampleResult.normalising_constant`)."""
+        return self.result.normalising_constant(method)
+
+    def tour_statistics(self):
+        return self.result.tour_statistics()
+
+    def ess(self, name: str, method=None):
+        return self.result.ess(name, method)
+
+    def estimate_draws(self, fn):
+        return self.result.estimate_draws(fn)
+
+    def to_arviz(self, resample: bool = True, seed: int = 0):
+        return self.result.to_arviz(resample=resample, seed=seed)
+
+    def summary(self) -> str:
+        """The stages in a table, then the final run's summary."""
+        lines = [
+            f"autosample: {len(self.stages)} stages, {self.evaluations:,} evaluations in {self.wall_time:.1f} s"
+            + ("" if self.healthy else " (no stage reached healthy tails: read the diagnostics)"),
+            "  stage kind   regeneration                    evals     k_hat(T)  k_hat(w)  log Z",
+        ]
+        for s in self.stages:
+            z = "" if math.isnan(s.log_z) else f"{s.log_z:.4f} +- {s.log_z_se:.4f}"
+            lines.append(
+                f"  {s.stage:>5} {s.kind:<6} {s.family + f' x{s.num_components}':<30} {s.evaluations:>10,} "
+                f"{s.duration_k_hat:>8.2f} {s.importance_k_hat:>9.2f}  {z}"
+            )
+        return "\n".join(lines + [self.result.summary()])
+
+    def __repr__(self) -> str:
+        final = self.stages[-1]
+        return (
+            f"<AutoResult: {len(self.stages)} stages, {self.evaluations:,} evaluations, final regeneration "
+            f"{final.family} x{final.num_components}, k_hat(T) {final.duration_k_hat:.2f}>"
+        )
+
+
+def _user_knowledge(box, scale, loc, prior, dim, dtype):
+    """Where the seeding chains start, and the defensive component of every regeneration."""
+    given = [name for name, value in (("box", box), ("scale", scale), ("prior", prior)) if value is not None]
+    if len(given) != 1:
+        raise ValueError(
+            "give exactly one of box=(lower, upper), scale= (with optional loc=) or prior= (a "
+            f"restore.regeneration distribution): what you know about where the target's mass is; got {given or 'none'}"
+        )
+    if prior is not None:
+        if not isinstance(prior, AbstractRegeneration):
+            raise TypeError(f"prior must be a restore.regeneration distribution, got {type(prior).__name__}")
+        return prior, prior
+    if box is not None:
+        try:
+            lower, upper = box
+        except (TypeError, ValueError):
+            raise ValueError(f"box must be a pair (lower, upper), got {box!r}") from None
+        lower, upper = np.broadcast_arrays(np.asarray(lower, np.float64), np.asarray(upper, np.float64))
+        if lower.ndim == 0:
+            if dim is None:
+                raise ValueError("box bounds are scalars: give dim= too")
+            lower, upper = np.full(dim, float(lower)), np.full(dim, float(upper))
+        if lower.ndim != 1 or not (np.all(np.isfinite(lower)) and np.all(np.isfinite(upper)) and np.all(upper > lower)):
+            raise ValueError("box must be (lower, upper) with finite 1-d bounds and upper > lower everywhere")
+        centre, half = 0.5 * (lower + upper), 0.5 * (upper - lower)
+        starts = UniformBox(jnp.asarray(lower, dtype), jnp.asarray(upper, dtype))
+        return starts, StudentT(jnp.asarray(centre, dtype), jnp.asarray(half**2, dtype), DEFENSIVE_DF)
+    scale = np.asarray(scale, np.float64)
+    if loc is None:
+        if scale.ndim == 0 and dim is None:
+            raise ValueError("scale is a scalar and no loc is given: give dim= too")
+        loc = np.zeros(dim if scale.ndim == 0 else scale.shape[0])
+    loc = np.asarray(loc, np.float64).reshape(-1)
+    scale = np.broadcast_to(scale, loc.shape)
+    if not (np.all(np.isfinite(scale)) and np.all(scale > 0) and np.all(np.isfinite(loc))):
+        raise ValueError("scale must be positive and finite, and loc finite")
+    t = StudentT(jnp.asarray(loc, dtype), jnp.asarray(scale**2, dtype), DEFENSIVE_DF)
+    return t, t
+
+
+def typical_scale(regeneration: AbstractRegeneration) -> np.ndarray:
+    """Per-coordinate standard deviation within a component: the step scale of local moves."""
+    if isinstance(regeneration, Mixture):
+        weights = np.asarray(regeneration.weights)
+        parts = [typical_scale(c) for c in regeneration.components]
+        return np.sum(weights[:, None] * np.array(parts), axis=0)
+    if isinstance(regeneration, DiagonalMixture):
+        return np.asarray(jnp.exp(regeneration.log_weights) @ regeneration.scales)
+    if isinstance(regeneration, ProductMixture):
+        return np.sum(np.exp(np.asarray(regeneration.log_weights)) * np.asarray(regeneration.scales), axis=1)
+    for name in ("scale_tril",):
+        tril = getattr(regeneration, name, None)
+        if tril is not None:
+            return np.sqrt(np.sum(np.asarray(tril) ** 2, axis=1))
+    draws = np.asarray(regeneration.sample(jax.random.key(0), (2048,)))
+    return np.std(draws, axis=0)
+
+
+def _evaluations(result: SampleResult, pilot: int) -> int:
+    return int(result.num_lanes * (result.num_steps + result.finishing_steps) + pilot)
+
+
+def _stage_report(stage, kind, fit, result: SampleResult, pilot: int, seconds: float) -> StageReport:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        stats = result.tour_statistics()
+        try:
+            log_z = result.normalising_constant()
+            z, z_se = float(log_z.value), float(log_z.standard_error)
+        except ValueError:
+            z, z_se = math.nan, math.nan
+        try:
+            k_w = float(result.normalising_constant("importance").k_hat)
+        except ValueError:
+            k_w = math.nan
+    k_t = float(stats.k_hat)
+    share = stats.effective_num_tours / max(stats.num_tours, 1)
+    healthy = (
+        stats.num_tours >= 100
+        and k_t < HEALTHY_DURATION_K
+        and not (k_w >= HEALTHY_IMPORTANCE_K)
+        and result.num_uncovered == 0
+        and result.num_invalid == 0
+    )
+    return StageReport(stage, kind, fit.family, fit.num_components, _evaluations(result, pilot), seconds, k_t, k_w, share, z, z_se, bool(healthy))
+
+
+def autosample(
+    logdensity: Callable[[Array], Array],
+    key: PRNGKeyArray,
+    *,
+    box: tuple[ArrayLike, ArrayLike] | None = None,
+    scale: ArrayLike | None = None,
+    loc: ArrayLike | None = None,
+    prior: AbstractRegeneration | None = None,
+    dim: int | None = None,
+    num_lanes: int = 1024,
+    num_steps: int = 1000,
+    observables: Mapping[str, Callable[[Array], Array]] | None = None,
+    tour_length: float = 5.0,
+    local: AbstractLocalKernel | None = None,
+    families: Sequence[str] = FAMILIES,
+    defensive: float = 0.1,
+    max_stages: int = 6,
+    stage_steps: int | None = None,
+    seed_steps: int = 200,
+    progress: bool = True,
+    **sample_kwargs,
+) -> AutoResult:
+    """Sample `logdensity` with jump Restore, its regeneration built and improved in stages.
+
+    Give one of `box`, `scale` (with `loc`) or `prior`: what you know about where the
+    target's mass is. The result's estimates come from a final run whose regeneration was
+    fixed before it started; every estimate carries the tail diagnostic `k_hat` and is
+    marked unreliable when its error bar cannot be trusted.
+
+    Arguments:
+        logdensity: unnormalised log density of one point `(d,)`.
+        key: a JAX PRNG key.
+        box: `(lower, upper)` bounds (arrays `(d,)`, or scalars with `dim`) that hold most
+            of the mass; seeding starts are uniform in it, and a Student-t over it (df 3)
+            is the defensive component.
+        scale: a rough scale of the target around `loc` (scalar with `dim`, or `(d,)`).
+        loc: the centre for `scale` (default 0).
+        prior: a `restore.regeneration` distribution that covers the target (e.g. the
+            prior of a Bayesian model); starts are drawn from it and it is the defensive
+            component.
+        dim: the dimension, when `box` or `scale` are scalars.
+        num_lanes: lanes of every stage and of the final run.
+        num_steps: steps per lane of the final run.
+        observables: what the final run streams (default `x` and `x**2`).
+        tour_length: mean tour duration `T` of every run.
+        local: the local kernel (default: random-walk Metropolis with scale
+            `2.38 / sqrt(d)` times the typical within-component standard deviation of
+            each stage's regeneration).
+        families: the regeneration families to choose from (see
+            `restore.regeneration.choose_regeneration`).
+        defensive: weight of the defensive component in every regeneration.
+        max_stages: most Restore stages before the final run.
+        stage_steps: steps per lane of each stage (default `max(100, num_steps // 4)`).
+        seed_steps: steps of each seeding chain.
+        progress: show progress bars and one line per stage.
+        sample_kwargs: passed on to the final `restore.sample` (e.g. `max_draws`, `checkpoint`).
+
+    Returns:
+        An `AutoResult`.
+    """
+    started = time.perf_counter()
+    num_lanes, num_steps = check_integer(num_lanes, "num_lanes", minimum=4), check_integer(num_steps, "num_steps")
+    max_stages, seed_steps = check_integer(max_stages, "max_stages"), check_integer(seed_steps, "seed_steps", minimum=4)
+    stage_steps = max(100, num_steps // 4) if stage_steps is None else check_integer(stage_steps, "stage_steps")
+    if not 0.0 < float(defensive) < 1.0:
+        raise ValueError(f"defensive must lie in (0, 1), got {defensive!r}")
+    dtype = jnp.result_type(float)
+    starts_from, defend = _user_knowledge(box, scale, loc, prior, dim, dtype)
+    d = starts_from.dim
+    check_logdensity(logdensity, d)
+    say = console_note if progress else (lambda message: None)
+
+    key_seed, key_starts, key_stages, key_final = jax.random.split(key, 4)
+    clock = time.perf_counter()
+    seeds = seed_draws(logdensity, starts_from.sample(key_starts, (num_lanes,)), key_seed, num_steps=seed_steps)
+    seed_report = StageReport(
+        0, "seed", "chains", num_lanes, seeds.evaluations, time.perf_counter() - clock,
+        math.nan, math.nan, math.nan, math.nan, math.nan, False,
+    )  # fmt: skip
+    stages = [seed_report]
+    say(f"autosample: {num_lanes} seeding chains, {'MALA' if seeds.uses_gradient else 'random walk'}, acceptance {seeds.acceptance:.2f}")
+    draws, weights, groups = seeds.positions, np.ones(len(seeds.positions)), seeds.chains
+
+    def regeneration_from(fit):
+        return Mixture([fit.distribution, defend], jnp.asarray([1.0 - defensive, defensive], dtype))
+
+    def sampler_for(fit, u, log_z):
+        kernel = local if local is not None else RandomWalk(jnp.asarray(2.38 / math.sqrt(d) * typical_scale(fit.distribution), dtype))
+        if log_z is None:
+            return JumpRestore(logdensity, kernel, u, tour_length=tour_length), True
+        return JumpRestore(logdensity, kernel, u, log_rate=log_z - math.log(tour_length)), False
+
+    best = None  # (k_hat of durations, fit, regeneration, log Z) of the stage with the lightest tail
+    log_z = None
+    for stage in range(1, max_stages + 1):
+        clock = time.perf_counter()
+        choice = choose_regeneration(draws, weights, groups, families=families, seed=stage)
+        u = regeneration_from(choice.fit)
+        sampler, piloted = sampler_for(choice.fit, u, log_z)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            result = sample(
+                sampler, jax.random.fold_in(key_stages, stage), num_lanes=num_lanes, num_steps=stage_steps,
+                observables={"x": _identity}, progress=progress, max_draws=min(100_000, num_lanes * 64),
+            )  # fmt: skip
+        pilot = sampler.pilot_size if piloted else 0
+        report = _stage_report(stage, "adapt", choice.fit, result, pilot, time.perf_counter() - clock)
+        stages.append(report)
+        say(
+            f"autosample stage {stage}: {choice.fit.family} x{choice.fit.num_components}, tail shapes "
+            f"k_hat(T) {report.duration_k_hat:.2f}, k_hat(w) {report.importance_k_hat:.2f}"
+            + (" - healthy" if report.healthy else "")
+        )
+        if math.isfinite(report.log_z):
+            log_z = report.log_z
+        if best is None or _tail(report) < _tail(best[0]):
+            best = (report, choice.fit, u, log_z)
+        if report.healthy:
+            break
+        draws = result.draws.reshape(-1, d)
+        weights = result.draw_weights.reshape(-1)
+        groups = np.broadcast_to(np.arange(result.num_lanes), result.draw_weights.shape).reshape(-1)
+
+    report, fit, u, log_z = best
+    clock = time.perf_counter()
+    sampler, piloted = sampler_for(fit, u, log_z)
+    sample_kwargs.setdefault("progress", progress)
+    result = sample(sampler, key_final, num_lanes=num_lanes, num_steps=num_steps, observables=observables, **sample_kwargs)
+    final = _stage_report(len(stages), "final", fit, result, sampler.pilot_size if piloted else 0, time.perf_counter() - clock)
+    stages.append(final)
+    total = sum(s.evaluations for s in stages)
+    return AutoResult(result, sampler, u, stages, total, time.perf_counter() - started, report.healthy)
+
+
+def _tail(report: StageReport) -> float:
+    return report.duration_k_hat if math.isfinite(report.duration_k_hat) else math.inf
+
+
+def _identity(x: Array) -> Array:
+    return x
