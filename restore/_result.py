@@ -78,7 +78,8 @@ class SampleResult:
         """Estimate of `E_pi[f]` for the streamed observable `name`, with its standard error.
 
         Arguments:
-            name: an observable given to `restore.sample` (default ones: `"x"`, `"x**2"`).
+            name: an observable given to `restore.sample` (default ones: `"x"`, `"x**2"`;
+                the position `"x"` is streamed with any observables).
             method: `"tours"` (regenerative ratio estimator over complete tours; the
                 default for Restore samplers) or `"lanes"` (lanes as independent
                 replicates, incomplete tours included; the default for MH).

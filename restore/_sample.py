@@ -314,7 +314,8 @@ def sample(
         num_steps: steps per lane (each step is one density evaluation for RandomWalk
             and MALA local dynamics).
         observables: mapping from names to functions of one state; default
-            `{"x": x, "x**2": x**2}`.
+            `{"x": x, "x**2": x**2}`. The position `"x"` is streamed too when the
+            mapping does not define it, so `result.estimate("x")` is always there.
         weights: `"rao_blackwell"` (holding times replaced by their means
             `1/(r + gamma)`, lower variance) or `"time"` (the sampled holding times).
         positions: optional `(num_lanes, d)` starting points.
