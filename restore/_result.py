@@ -56,11 +56,23 @@ class SampleResult:
             log_rate=None if log_rate is None else float(log_rate),
             tour_length=getattr(sampler, "tour_length", None),
             pilot=getattr(sampler, "pilot", None),
+            expected_tour_times=_expected_tour_times(sampler, final_state, sums),
         )
         result._warn()
         return result
 
     # ------------------------------------------------------------------ estimates
+    @property
+    def tour_log_rate(self) -> float | None:
+        """`log c` such that the mean duration of the complete tours is `Z / c`: `log c_tilde` with
+        one phase; with several, the tours' own constants `c_tilde_{phase(k)}` averaged
+        harmonically (whatever the phase rule)."""
+        times = getattr(self, "expected_tour_times", None)
+        n = float(np.sum(self.sums.num_tours))
+        if times is None or n == 0:
+            return self.log_rate
+        return math.log(n) - math.log(float(np.sum(times)))
+
     def _default_method(self, method: Method | None) -> Method:
         method = method or ("tours" if self.is_regenerative else "lanes")
         if method not in ("tours", "lanes"):
@@ -129,12 +141,16 @@ class SampleResult:
             T, T2 = float(np.sum(s.sum_t, dtype=np.float64)), float(np.sum(s.sum_t2, dtype=np.float64))
             check_total_time(T, T2, "tours")
             mean = T / n
-            if self.is_regenerative:
+            times = getattr(self, "expected_tour_times", None)
+            if times is not None:  # several phases: tours of phase j last Z / c_tilde_j on average
+                ratio = lane_ratio(s.sum_t, times)  # Z_hat = sum T / sum 1 / c_tilde_phase(k), lanes independent
+                rel_se = float(ratio.standard_error / ratio.value)
+            elif self.is_regenerative:
                 sd = math.sqrt(max(T2 / n - mean**2, 0.0) * n / (n - 1))
                 rel_se = sd / (mean * math.sqrt(n))
             else:
                 rel_se = float(lane_ratio(s.sum_t, s.num_tours).standard_error) / mean
-            return LogEstimate(np.asarray(self.log_rate + math.log(mean)), np.asarray(rel_se))
+            return LogEstimate(np.asarray(self.tour_log_rate + math.log(mean)), np.asarray(rel_se))
         if method == "importance":
             log_z, se = log_mean_exp(s.log_iw_sum, s.log_iw_sum2, float(np.sum(s.num_iw)))
             return LogEstimate(np.asarray(log_z), np.asarray(se))
@@ -148,7 +164,7 @@ class SampleResult:
             expected = float(self.tour_length)
         else:
             try:
-                expected = math.exp(float(self.normalising_constant("importance").value) - self.log_rate)
+                expected = math.exp(float(self.normalising_constant("importance").value) - self.tour_log_rate)
             except ValueError:
                 expected = math.nan
         s = self.sums
@@ -297,3 +313,11 @@ class SampleResult:
 
     def __repr__(self) -> str:
         return f"<SampleResult {self.sampler_name}: {self.num_lanes} lanes x {self.num_steps} steps>"
+
+
+def _expected_tour_times(sampler, final_state, sums):
+    """Per lane, the complete tours' `sum 1 / c_tilde_phase` (`None` with one phase)."""
+    times = getattr(sampler, "expected_tour_times", None)
+    if times is None or not hasattr(final_state, "tour"):
+        return None
+    return times(final_state.tour, sums.num_tours)

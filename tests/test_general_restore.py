@@ -317,3 +317,20 @@ def test_too_small_a_constant_is_reported():
     with pytest.warns(RuntimeWarning, match="negative"):
         result = restore.sample(process, jax.random.key(0), num_lanes=16, num_steps=200, progress=False, max_draws=0)
     assert result.num_negative_rate > 0
+
+
+def test_z_from_tours_with_a_phase_rule_that_does_not_cycle():
+    """One tour in four uses phase 1: the tours' own constants give `Z`, not the cycle's mean."""
+    logdensity = lambda x: -0.5 * jnp.sum(x**2)  # Z = 2 pi
+    process = restore.Restore(
+        logdensity, Jump(RandomWalk(1.0)), (Gaussian(jnp.zeros(2), 2.0), Gaussian(jnp.zeros(2), 1.5)),
+        log_rate=(0.0, 2.0), phase_rule=lambda i: (i % 4 == 0).astype(jnp.int32),
+    )  # fmt: skip
+    assert process.phase_of_tour(jnp.arange(6)).tolist() == [0, 0, 0, 0, 1, 0]
+    result = restore.sample(process, jax.random.key(0), num_lanes=64, num_steps=1000, progress=False, max_draws=0)
+    log_z = result.normalising_constant("tours")
+    assert abs(float(log_z.z_score(np.log(2 * np.pi)))) < 4, log_z
+    stats = result.tour_statistics()
+    assert abs(stats.mean_duration - stats.expected_duration) < 4 * stats.mean_duration_se, stats
+    # About 3/4 of the tours have c_tilde = 1 and 1/4 have c_tilde = e^2, harmonically averaged.
+    assert abs(result.tour_log_rate - np.log(1 / (0.75 + 0.25 * np.exp(-2.0)))) < 0.02
