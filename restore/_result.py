@@ -123,7 +123,10 @@ class SampleResult:
         """Estimate of `log Z` with the standard error of the log.
 
         `"tours"`: the mean tour duration is `Z / c_tilde`, so
-        `Z_hat = c_tilde * (total time of complete tours) / (number of tours)`.
+        `Z_hat = c_tilde * (total time of complete tours) / (number of tours)`. With
+        several phases, tour `k` of phase `j` lasts `Z / c_tilde_j` on average whatever
+        the phase rule, so `Z_hat = sum_k T_k / sum_k 1 / c_tilde_phase(k)`, with lanes as
+        independent replicates for the standard error (see `tour_log_rate`).
         `"importance"`: the mean of `p(y) / q(y)` over every tour start `y` drawn from the
         reference `q` of the run (a by-product: those draws are evaluated anyway).
 
