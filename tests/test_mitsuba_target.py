@@ -409,3 +409,20 @@ def test_report_paths_per_second(mi):
     print(f"\nCornell box 64x64, max_depth 4: PSS {pss:,.0f} paths/s, native {native:,.0f} paths/s, "
           f"ratio {pss / native:.2f}")
     assert pss > 0 and native > 0
+
+
+def test_cuda_variant_is_preferred_only_when_built_and_usable(mi, monkeypatch):
+    class FakeMitsuba:
+        def __init__(self, variants):
+            self._variants = variants
+
+        def variants(self):
+            return self._variants
+
+    import drjit as dr
+
+    built = FakeMitsuba(["scalar_rgb", "llvm_ad_rgb", "cuda_ad_rgb"])
+    for usable, expected in ((True, "cuda_ad_rgb"), (False, "llvm_ad_rgb")):
+        monkeypatch.setattr(_llvm, "_has_backend", lambda dr, name, usable=usable: name == "LLVM" or usable)
+        assert _llvm.preferred_variant(built, dr) == expected
+    assert _llvm.preferred_variant(FakeMitsuba(["scalar_rgb", "llvm_ad_rgb"]), dr) == "llvm_ad_rgb"
