@@ -19,8 +19,8 @@ from ._models import (
     broad_regeneration,
     jump_restore,
     laplace_regeneration,
-    mixture_10d,
     mixture_2d,
+    mixture_10d,
 )
 
 ALPHA = 1e-3  # family-wise level of each check; negative controls fail far beyond it
