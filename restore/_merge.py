@@ -60,6 +60,7 @@ def merge_results(results: Sequence[SampleResult]) -> SampleResult:
         draws=np.concatenate([r.draws for r in results], axis=1),
         draw_weights=np.concatenate([r.draw_weights for r in results], axis=1),
         final_state=final_state,
+        expected_tour_times=None if first.expected_tour_times is None else concat(*(r.expected_tour_times for r in results)),
         num_lanes=sum(r.num_lanes for r in results),
         finishing_steps=max(r.finishing_steps for r in results),
         unfinished_tours=sum(r.unfinished_tours for r in results),

@@ -34,7 +34,12 @@ class Slot(NamedTuple):
 
 
 class Observables(eqx.Module):
-    """A fixed set of named observables evaluated together as one flat vector."""
+    """A fixed set of named observables evaluated together as one flat vector.
+
+    The position `"x"` is always among them: a mapping that does not define `"x"` gets it
+    added after its own observables (so `result.estimate("x")` works with any
+    observables, and the user's observables keep their places in the vector).
+    """
 
     functions: tuple[Callable[[Array], Array], ...] = eqx.field(static=True)
     slots: tuple[Slot, ...] = eqx.field(static=True)
@@ -43,6 +48,8 @@ class Observables(eqx.Module):
         observables = DEFAULT_OBSERVABLES if observables is None else observables
         if not isinstance(observables, Mapping) or not observables:
             raise ValueError("observables must be a non-empty mapping from names to functions of one state")
+        if "x" not in {str(name) for name in observables}:
+            observables = {**observables, "x": position}
         slots, start = [], 0
         probe = jax.ShapeDtypeStruct((dim,), dtype)
         for name, fn in observables.items():

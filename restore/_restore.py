@@ -16,6 +16,7 @@ from typing import ClassVar, NamedTuple
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
 from ._point import Point, evaluate
@@ -232,11 +233,37 @@ class AbstractRestore(eqx.Module):
     @property
     def effective_log_rate(self) -> float | None:
         """`log c_eff` with `1 / c_eff` the mean of `1 / c_tilde_k` over phases, so that the mean
-        tour duration is `Z / c_eff` under the default cycle (`log c_tilde` with one phase)."""
+        tour duration is `Z / c_eff` under the default cycle (`log c_tilde` with one phase).
+        With another phase rule the tours' own phases count (`expected_tour_times`)."""
         if self.log_rate is None:
             return None
         rates = jnp.atleast_1d(jnp.asarray(self.log_rate, jnp.float64 if jax.config.jax_enable_x64 else jnp.float32))
         return float(-(jax.nn.logsumexp(-rates) - math.log(rates.shape[0])))
+
+    def phase_of_tour(self, tour: Int[Array, "*n"]) -> Int[Array, "*n"]:
+        """The phase that tour number `tour` of a lane uses (tour 0, started by `init`, uses phase 0)."""
+        tour = jnp.asarray(tour, jnp.int32)
+        if self.num_phases == 1:
+            return jnp.zeros_like(tour)
+        return jnp.where(tour == 0, 0, jax.vmap(self._next_phase)(tour.reshape(-1)).reshape(tour.shape))
+
+    def expected_tour_times(self, last_tour, num_tours) -> np.ndarray | None:
+        """Per lane, `sum_k 1 / c_tilde_{phase(k)}` over its `num_tours` complete tours, those just
+        before tour `last_tour` (the lane's open tour): their expected total duration over `Z`.
+
+        Each complete tour `k` of phase `j` lasts `Z / c_tilde_j` on average whatever the phase
+        rule, so the total duration of the tours divided by this sum estimates `Z`. `None`
+        with one phase (then it is `num_tours / c_tilde`).
+        """
+        if self.num_phases == 1 or self.log_rate is None:
+            return None
+        last, count = np.asarray(last_tour, np.int64), np.asarray(num_tours, np.int64)
+        if np.max(last, initial=0) == 0:
+            return np.zeros(last.shape)
+        phases = np.asarray(self.phase_of_tour(jnp.arange(int(np.max(last)))))
+        inverse = np.exp(-np.asarray(self.log_rate, np.float64))[phases]
+        cumulative = np.concatenate([[0.0], np.cumsum(inverse)])
+        return cumulative[last] - cumulative[last - count]
 
     @property
     def uses_gradient(self) -> bool:

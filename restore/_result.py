@@ -68,11 +68,23 @@ class SampleResult:
             log_rate=None if log_rate is None else float(log_rate),
             tour_length=getattr(sampler, "tour_length", None),
             pilot=getattr(sampler, "pilot", None),
+            expected_tour_times=_expected_tour_times(sampler, final_state, sums),
         )
         result._warn()
         return result
 
     # ------------------------------------------------------------------ estimates
+    @property
+    def tour_log_rate(self) -> float | None:
+        """`log c` such that the mean duration of the complete tours is `Z / c`: `log c_tilde` with
+        one phase; with several, the tours' own constants `c_tilde_{phase(k)}` averaged
+        harmonically (whatever the phase rule)."""
+        times = getattr(self, "expected_tour_times", None)
+        n = float(np.sum(self.sums.num_tours))
+        if times is None or n == 0:
+            return self.log_rate
+        return math.log(n) - math.log(float(np.sum(times)))
+
     def _default_method(self, method: Method | None) -> Method:
         method = method or ("tours" if self.is_regenerative else "lanes")
         if method not in ("tours", "lanes"):
@@ -90,7 +102,8 @@ class SampleResult:
         """Estimate of `E_pi[f]` for the streamed observable `name`, with its standard error.
 
         Arguments:
-            name: an observable given to `restore.sample` (default ones: `"x"`, `"x**2"`).
+            name: an observable given to `restore.sample` (default ones: `"x"`, `"x**2"`;
+                the position `"x"` is streamed with any observables).
             method: `"tours"` (regenerative ratio estimator over complete tours; the
                 default for Restore samplers) or `"lanes"` (lanes as independent
                 replicates, incomplete tours included; the default for MH).
@@ -128,7 +141,10 @@ class SampleResult:
         """Estimate of `log Z` with the standard error of the log.
 
         `"tours"`: the mean tour duration is `Z / c_tilde`, so
-        `Z_hat = c_tilde * (total time of complete tours) / (number of tours)`.
+        `Z_hat = c_tilde * (total time of complete tours) / (number of tours)`. With
+        several phases, tour `k` of phase `j` lasts `Z / c_tilde_j` on average whatever
+        the phase rule, so `Z_hat = sum_k T_k / sum_k 1 / c_tilde_phase(k)`, with lanes as
+        independent replicates for the standard error (see `tour_log_rate`).
         `"importance"`: the mean of `p(y) / q(y)` over every tour start `y` drawn from the
         reference `q` of the run (a by-product: those draws are evaluated anyway).
 
@@ -150,14 +166,20 @@ class SampleResult:
             T, T2 = float(np.sum(s.sum_t, dtype=np.float64)), float(np.sum(s.sum_t2, dtype=np.float64))
             check_total_time(T, T2, "tours")
             mean = T / n
-            if self.is_regenerative:
+            times = getattr(self, "expected_tour_times", None)
+            log_z = np.asarray(self.log_rate + math.log(mean))
+            if times is not None:  # several phases: tours of phase j last Z / c_tilde_j on average
+                times = np.asarray(times) if lanes is None else np.asarray(times)[lanes]
+                ratio = lane_ratio(s.sum_t, times)  # Z_hat = sum T / sum 1 / c_tilde_phase(k), lanes independent
+                log_z = np.asarray(math.log(float(ratio.value)))
+                rel_se, k_hat, k_limit = float(ratio.standard_error / ratio.value), ratio.k_hat, ratio.k_limit
+            elif self.is_regenerative:
                 sd = math.sqrt(max(T2 / n - mean**2, 0.0) * n / (n - 1))
                 rel_se = sd / (mean * math.sqrt(n))
                 k_hat, k_limit = duration_k(tails, int(n)), k_hat_limit(n)
             else:
-                lanes = lane_ratio(s.sum_t, s.num_tours)
-                rel_se, k_hat, k_limit = float(lanes.standard_error) / mean, lanes.k_hat, lanes.k_limit
-            log_z = np.asarray(self.log_rate + math.log(mean))
+                lane_est = lane_ratio(s.sum_t, s.num_tours)
+                rel_se, k_hat, k_limit = float(lane_est.standard_error) / mean, lane_est.k_hat, lane_est.k_limit
             est = LogEstimate(log_z, np.asarray(rel_se), np.asarray(k_hat), k_limit, self._open_tours_caveat(lanes))
         elif method == "importance":
             starts = float(np.sum(s.num_iw))
@@ -193,7 +215,7 @@ class SampleResult:
             expected = float(self.tour_length)
         else:
             try:
-                expected = math.exp(float(self.normalising_constant("importance").value) - self.log_rate)
+                expected = math.exp(float(self.normalising_constant("importance").value) - self.tour_log_rate)
             except ValueError:
                 expected = math.nan
         s = self.sums
@@ -362,3 +384,11 @@ def _warn_unreliable(what: str, estimate: Estimate) -> None:
         UnreliableEstimateWarning,
         stacklevel=3,
     )
+
+
+def _expected_tour_times(sampler, final_state, sums):
+    """Per lane, the complete tours' `sum 1 / c_tilde_phase` (`None` with one phase)."""
+    times = getattr(sampler, "expected_tour_times", None)
+    if times is None or not hasattr(final_state, "tour"):
+        return None
+    return times(final_state.tour, sums.num_tours)

@@ -34,14 +34,25 @@ from ._checkpoint import (
     check_interval,
     key_fingerprint,
     load_checkpoint,
+    read_header,
     save_checkpoint,
 )
 from ._observables import Observables
 from ._progress import console_note, progress_bar
 from ._result import SampleResult
+from ._sharding import (
+    Devices,
+    LaneSharding,
+    from_every_process,
+    lane_sharding,
+    map_devices,
+    map_lanes,
+    put,
+    to_host,
+    wait_for_every_process,
+)
 from ._tails import TourTails, init_tails, keep_largest, tail_depth
 from ._tour_records import TourRecords, emptied, has_room, init_records, record, records_per_lane
-from ._sharding import Devices, LaneSharding, lane_sharding, map_devices, map_lanes, put, to_host
 from ._validation import check_integer
 
 Weights = Literal["rao_blackwell", "time"]
@@ -237,10 +248,32 @@ class _Saver:
         return time.perf_counter() - self.last
 
     def save(self, run: _Run, *, done: int, wall_time: float, finished=False, finishing_steps=0, unfinished=0):
+        """Write the run to the file. With several processes every process gathers the run (a
+        collective), process 0 writes it, and all wait until it is written."""
         header = dict(self.fingerprint, done=int(done), wall_time=float(wall_time), finished=bool(finished))
         header.update(finishing_steps=int(finishing_steps), unfinished=int(unfinished))
-        save_checkpoint(self.path, to_host(run) if self.layout is not None else run, header)
+        host = to_host(run) if self.layout is not None else run
+        if jax.process_index() == 0:
+            save_checkpoint(self.path, host, header)
+        wait_for_every_process(f"restore checkpoint {done} {finished}")
         self.last = time.perf_counter()
+
+    def should_resume(self, resume: bool) -> bool:
+        """Whether to continue from the file. With several processes all must find the same
+        checkpoint (the file must be on a file system that every process sees)."""
+        found = bool(resume) and os.path.exists(self.path)
+        progress = [-1, -1]
+        if found and jax.process_count() > 1:
+            header = read_header(self.path)
+            progress = [int(header.get("done", -1)), int(header.get("finished", False))]
+        seen = from_every_process([int(found), *progress])
+        if np.any(seen != seen[0]):
+            found_by = {i: ("no checkpoint" if not row[0] else f"step {row[1]}") for i, row in enumerate(seen.tolist())}
+            raise CheckpointError(
+                f"the processes disagree about checkpoint {self.path} (by process: {found_by}); with several "
+                "processes the checkpoint must be on a file system that every process sees"
+            )
+        return found
 
     def load(self, carry: _Carry) -> tuple[_Run, dict]:
         host = to_host((carry.sums, carry.histogram))
@@ -300,7 +333,8 @@ def sample(
         num_steps: steps per lane (each step is one density evaluation for RandomWalk
             and MALA local dynamics).
         observables: mapping from names to functions of one state; default
-            `{"x": x, "x**2": x**2}`.
+            `{"x": x, "x**2": x**2}`. The position `"x"` is streamed too when the
+            mapping does not define it, so `result.estimate("x")` is always there.
         weights: `"rao_blackwell"` (holding times replaced by their means
             `1/(r + gamma)`, lower variance) or `"time"` (the sampled holding times).
         positions: optional `(num_lanes, d)` starting points.
@@ -332,10 +366,9 @@ def sample(
             Several hosts: call `jax.distributed.initialize()` first in every process,
             run the same program (same key, arguments and sampler) in each, and pass
             `devices="all"` (the mesh spans `jax.devices()`, all global devices, so the
-            lanes are split across hosts); every process gets the full result. The
-            multi-host path is written to the documented multi-controller API but was
-            tested only with several (forced CPU) devices in one process; see
-            `docs/scaling.md`.
+            lanes are split across hosts); every process gets the full result, the
+            same bits as one process running the same lanes (tested with two
+            processes on one machine); see `docs/scaling.md`.
         checkpoint: a file to save the run's full state to (lane states, per-lane sums,
             tour histogram, stored draws, step count; keys are derived from `key` and the
             step count, so they need no saving), atomically, every `checkpoint_steps`
@@ -345,7 +378,8 @@ def sample(
             bit-identical to an uninterrupted one with the same key and arguments, and a
             finished checkpoint returns its result at once. A checkpoint of another run
             (other key, sizes, sampler parameters, observables or devices) is refused with
-            a `CheckpointError` that says what differs.
+            a `CheckpointError` that says what differs. With several processes, process 0
+            writes the file, which must be on a file system that every process sees.
         checkpoint_steps: save at the end of the first chunk at or after every
             `checkpoint_steps` steps (chunk boundaries do not move, so a run computes
             the same numbers with or without checkpoints; raise `num_chunks` for finer
@@ -471,7 +505,7 @@ def sample(
             "num_devices": 1 if sharding is None else sharding.num_devices,
         }
         saver = _Saver(checkpoint, fingerprint, layout)
-        if resume and os.path.exists(checkpoint):
+        if saver.should_resume(resume):
             run, header = saver.load(carry)
             done, spent, finished = header["done"], header["wall_time"], header["finished"]
             finishing_steps, unfinished = header["finishing_steps"], header["unfinished"]

@@ -127,10 +127,33 @@ def to_host(tree):
     """Numpy copies of every array of `tree`, gathered from all processes where needed."""
 
     def gather(x):
+        if isinstance(x, jax.Array) and jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key):
+            return jax.random.wrap_key_data(gather(jax.random.key_data(x)), impl=jax.random.key_impl(x))
         if isinstance(x, jax.Array) and not x.is_fully_addressable:
             from jax.experimental import multihost_utils
 
-            return multihost_utils.process_allgather(x)
+            # A global array that spans several processes is gathered whole: `tiled=True`
+            # keeps its global shape (`tiled=False` would stack per-process copies, and is
+            # refused for arrays that no single process holds in full).
+            return np.asarray(multihost_utils.process_allgather(x, tiled=True))
         return np.asarray(x) if isinstance(x, jax.Array) else x
 
     return jax.tree.map(gather, tree)
+
+
+def from_every_process(values: Sequence[int]) -> np.ndarray:
+    """`values` (a few integers) of every process, one row per process (one row with one process)."""
+    row = np.asarray(values, np.int64)[None]
+    if jax.process_count() == 1:
+        return row
+    from jax.experimental import multihost_utils
+
+    return np.asarray(multihost_utils.process_allgather(row[0])).reshape(jax.process_count(), -1)
+
+
+def wait_for_every_process(name: str) -> None:
+    """A barrier over all processes (nothing with one process)."""
+    if jax.process_count() > 1:
+        from jax.experimental import multihost_utils
+
+        multihost_utils.sync_global_devices(name)

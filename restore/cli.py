@@ -131,6 +131,10 @@ def bench(
         console.print(f"  {path}")
 
 
+#: `restore render`'s film size and depth for the built-in scenes.
+_BUILTIN_RESOLUTION, _BUILTIN_MAX_DEPTH = "128", 5
+
+
 def _fail(message: str) -> None:
     console.print(f"[bold red]error:[/] {message}", soft_wrap=True)
     raise typer.Exit(code=2)
@@ -155,8 +159,12 @@ def render(
     time_budget: float | None = typer.Option(None, "--time", min=1e-3, help="Wall-time budget in seconds (compilation excluded)."),
     evaluations: int | None = typer.Option(None, min=1, help="Path budget instead of (or as well as) a time budget."),
     out: Path = typer.Option(Path("render.exr"), help="Image to write (.exr, or .npy); a tonemapped .png preview is written beside it."),
-    resolution: str = typer.Option("128", help="Film size, e.g. 128 or 160x120."),
-    max_depth: int = typer.Option(5, min=1, help="Maximum path depth (as in Mitsuba's path integrator)."),
+    resolution: str | None = typer.Option(
+        None, help=f"Film size, e.g. 128 or 160x120 (default: an XML scene's own; {_BUILTIN_RESOLUTION} for built-in scenes)."
+    ),
+    max_depth: int | None = typer.Option(
+        None, min=1, help=f"Maximum path depth, as in Mitsuba's path integrator (default: an XML scene's own; {_BUILTIN_MAX_DEPTH} for built-in scenes)."
+    ),
     lanes: int = typer.Option(16384, min=1, help="Parallel lanes of the PSS renderers."),
     tour_length: float = typer.Option(32.0, min=1e-6, help="Restore's mean tour length; PSSMLT's large-step probability is 1/(1 + it)."),
     seed: int = typer.Option(0, help="Random seed."),
@@ -165,7 +173,12 @@ def render(
         None, help="Save the render's state to this file every minute, at the end and on Ctrl-C; resume from it if it exists (PSS methods)."
     ),
 ) -> None:
-    """Render a Mitsuba scene with Metropolis Restore, a baseline, or Mitsuba's own path tracer."""
+    """Render a Mitsuba scene with Metropolis Restore, a baseline, or Mitsuba's own path tracer.
+
+    An XML scene keeps its film size and maximum depth unless --resolution or --max-depth
+    is given; every setting of it that is changed (its reconstruction filter becomes a box
+    filter) is printed.
+    """
     from .render._methods import GRADIENT_METHODS, METHODS
 
     if method not in METHODS:
@@ -180,13 +193,13 @@ def render(
         _fail("--checkpoint works with the PSS methods; Mitsuba's path tracer (--method path) has no resumable state")
     if checkpoint is not None and not checkpoint.parent.is_dir():
         _fail(f"folder {checkpoint.parent} of --checkpoint does not exist")
-    width, height = _resolution(resolution)
+    size = None if resolution is None else _resolution(resolution)
     try:
         from targets.mitsuba import LLVMNotFoundError, UnsupportedSceneError
     except ImportError as error:  # pragma: no cover - targets ships with the package
         _fail(str(error))
     try:
-        image, summary = _render(scene, method, time_budget, evaluations, (width, height), max_depth, lanes, tour_length, seed, progress, method in GRADIENT_METHODS, checkpoint)
+        image, summary = _render(scene, method, time_budget, evaluations, size, max_depth, lanes, tour_length, seed, progress, method in GRADIENT_METHODS, checkpoint)
     except (FileNotFoundError, UnsupportedSceneError, LLVMNotFoundError, ImportError) as error:
         _fail(str(error))
     except ValueError as error:
@@ -200,13 +213,33 @@ def render(
 
 
 def _render(scene, method, seconds, evaluations, resolution, max_depth, lanes, tour_length, seed, progress, needs_gradient, checkpoint=None):
-    """Run one render; returns the image and a one-line summary."""
+    """Run one render; returns the image and a one-line summary.
+
+    `resolution` and `max_depth` are `None` where not given: a built-in scene then gets the
+    command's defaults, a scene file keeps its own (a depth is needed: Mitsuba's default of
+    none becomes the library's default, with a note).
+    """
     import jax
     import numpy as np
 
     from targets.mitsuba import PrimarySampleSpace, load_scene, render_native, render_native_for
+    from targets.mitsuba._scene_checks import check_path_model, path_settings
+    from targets.mitsuba._scenes import DEFAULT_MAX_DEPTH, is_scene_file
 
-    loaded = load_scene(scene, resolution, max_depth)
+    if not is_scene_file(scene):
+        resolution = resolution or _resolution(_BUILTIN_RESOLUTION)
+        max_depth = max_depth or _BUILTIN_MAX_DEPTH
+    notes: list[str] = []
+    loaded = load_scene(scene, resolution, max_depth, log=notes.append)
+    check_path_model(loaded)
+    if max_depth is None:
+        max_depth = path_settings(loaded).max_depth
+        if max_depth is None:
+            max_depth = DEFAULT_MAX_DEPTH
+            notes.append(f"the scene's path integrator has no maximum depth; {max_depth} is used (pass --max-depth to choose)")
+    for note in notes:
+        console.print(f"[yellow]note:[/] {note}", soft_wrap=True)
+    resolution = tuple(int(v) for v in loaded.sensors()[0].film().crop_size())
     if method == "path":
         pixels = resolution[0] * resolution[1]
         if evaluations is not None and seconds is None:
@@ -219,7 +252,7 @@ def _render(scene, method, seconds, evaluations, resolution, max_depth, lanes, t
     from .render import render as run_render
     from .render._methods import make_renderer
 
-    target = PrimarySampleSpace(loaded, russian_roulette=not needs_gradient)
+    target = PrimarySampleSpace(loaded, max_depth=max_depth, russian_roulette=not needs_gradient)
     if needs_gradient:
         target.check_gradient_support()
     result = run_render(

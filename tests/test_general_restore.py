@@ -5,6 +5,8 @@ term, the rate `(L* p + c mu* p) / p` with an exit-dependent transfer, a schedul
 rates use the wrong reference) must fail it.
 """
 
+import warnings
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -44,12 +46,24 @@ def safe_log_rate(target, dynamics, reference, margin=0.3):
 
 
 def check(sampler, target, passes, key=3, time=2.0, lanes=4000):
-    report = stationarity_test(
-        sampler, jax.random.key(key), target.sample, num_lanes=lanes, time=time, assign_mode=target.assign_mode, mode_weights=target.weights
-    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # bound violations are checked below
+        report = stationarity_test(
+            sampler, jax.random.key(key), target.sample, num_lanes=lanes, time=time, assign_mode=target.assign_mode, mode_weights=target.weights
+        )
     assert report.passed == passes, str(report)
-    if not passes:
+    if passes:  # the process simulated is the exact one but for a vanishing share of thinning candidates
+        assert report.details["num_bound_exceeded"] <= 1e-4 * report.details["num_steps"], report.details
+        assert report.details["num_negative_rate"] == 0, report.details
+    else:
         assert report.min_p_value < 1e-6, str(report)
+
+
+def diffusion_reference(target):
+    """The target's components, 1.5 times wider: the diffusions' kill rates stay below affordable
+    thinning bounds on all but about 1e-4 of the target's mass. (A single Gaussian twice as wide
+    as the target puts `c_tilde q / p` over any such bound between the modes, on 0.7-3% of it.)"""
+    return Mixture([Gaussian(m, 1.5 * c) for m, c in zip(target.means, target.covariances)], target.weights)
 
 
 # --------------------------------------------------------------------------- the published Brownian example
@@ -88,30 +102,30 @@ def test_brownian_restore_in_one_dimension_has_unit_mean_tour():
 
 def test_brownian_restore_is_stationary_and_without_the_adjoint_is_not():
     target = mixture_2d()
-    reference = Gaussian(target.mean, 2.0 * target.covariance)
+    reference = diffusion_reference(target)
     log_rate = safe_log_rate(target, BrownianMotion(), reference)
-    check(restore.Restore(target.logdensity, BrownianMotion(), reference, log_rate=log_rate, bound=80.0), target, True)
+    check(restore.Restore(target.logdensity, BrownianMotion(), reference, log_rate=log_rate, bound=100.0), target, True)
 
     class BrownianWithoutAdjoint(BrownianMotion):
         is_invariant = True  # pretends L* p = 0
 
     # Without the adjoint any c_tilde > 0 keeps the rate positive; a small one gives long tours.
-    wrong = restore.Restore(target.logdensity, BrownianWithoutAdjoint(), reference, log_rate=-1.0, bound=80.0)
+    wrong = restore.Restore(target.logdensity, BrownianWithoutAdjoint(), reference, log_rate=-1.0, bound=100.0)
     check(wrong, target, False)
 
 
 def test_ornstein_uhlenbeck_restore_is_stationary():
     target = mixture_2d()
     dynamics = OrnsteinUhlenbeck(target.mean, 1.0, 1.0)
-    reference = Gaussian(target.mean, 2.0 * target.covariance)
+    reference = diffusion_reference(target)
     log_rate = safe_log_rate(target, dynamics, reference)
-    check(restore.Restore(target.logdensity, dynamics, reference, log_rate=log_rate, bound=60.0), target, True)
+    check(restore.Restore(target.logdensity, dynamics, reference, log_rate=log_rate, bound=200.0), target, True)
 
 
 def test_langevin_restore_is_stationary():
     """Overdamped Langevin is pi-invariant (its Euler simulation is approximate: small steps)."""
     target = mixture_2d()
-    reference = Gaussian(target.mean, 2.0 * target.covariance)
+    reference = diffusion_reference(target)
     process = restore.Restore(target.logdensity, OverdampedLangevin(1.0, step_size=0.01), reference, tour_length=1.0, bound=60.0)
     check(process.calibrate(jax.random.key(0)), target, True)
 
@@ -120,9 +134,9 @@ def test_generic_diffusion_restore_is_stationary():
     """A drift towards the mean with an anisotropic diffusion matrix; `L* p / p` by autodiff."""
     target = mixture_2d()
     dynamics = Diffusion(lambda x: -0.5 * (x - target.mean), jnp.array([[1.0, 0.3], [0.3, 0.6]]), step_size=0.01)
-    reference = Gaussian(target.mean, 2.0 * target.covariance)
+    reference = diffusion_reference(target)
     log_rate = safe_log_rate(target, dynamics, reference)
-    check(restore.Restore(target.logdensity, dynamics, reference, log_rate=log_rate, bound=60.0), target, True)
+    check(restore.Restore(target.logdensity, dynamics, reference, log_rate=log_rate, bound=100.0), target, True)
 
 
 def test_unadjusted_jump_restore_with_its_adjoint_is_stationary():
@@ -303,3 +317,20 @@ def test_too_small_a_constant_is_reported():
     with pytest.warns(RuntimeWarning, match="negative"):
         result = restore.sample(process, jax.random.key(0), num_lanes=16, num_steps=200, progress=False, max_draws=0)
     assert result.num_negative_rate > 0
+
+
+def test_z_from_tours_with_a_phase_rule_that_does_not_cycle():
+    """One tour in four uses phase 1: the tours' own constants give `Z`, not the cycle's mean."""
+    logdensity = lambda x: -0.5 * jnp.sum(x**2)  # Z = 2 pi
+    process = restore.Restore(
+        logdensity, Jump(RandomWalk(1.0)), (Gaussian(jnp.zeros(2), 2.0), Gaussian(jnp.zeros(2), 1.5)),
+        log_rate=(0.0, 2.0), phase_rule=lambda i: (i % 4 == 0).astype(jnp.int32),
+    )  # fmt: skip
+    assert process.phase_of_tour(jnp.arange(6)).tolist() == [0, 0, 0, 0, 1, 0]
+    result = restore.sample(process, jax.random.key(0), num_lanes=64, num_steps=1000, progress=False, max_draws=0)
+    log_z = result.normalising_constant("tours")
+    assert abs(float(log_z.z_score(np.log(2 * np.pi)))) < 4, log_z
+    stats = result.tour_statistics()
+    assert abs(stats.mean_duration - stats.expected_duration) < 4 * stats.mean_duration_se, stats
+    # About 3/4 of the tours have c_tilde = 1 and 1/4 have c_tilde = e^2, harmonically averaged.
+    assert abs(result.tour_log_rate - np.log(1 / (0.75 + 0.25 * np.exp(-2.0)))) < 0.02

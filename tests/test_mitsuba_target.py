@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ._mitsuba_extra import mitsuba_extra_installed
+from ._mitsuba_extra import mitsuba_extra_installed, xml_scene
 
 if not mitsuba_extra_installed():
     pytest.skip("the `mitsuba` extra is not installed", allow_module_level=True)
@@ -273,19 +273,7 @@ def test_registry_scenes_load_with_box_filter(mi):
 
 def test_xml_scene_gets_box_filter_and_overrides(mi, tmp_path):
     path = tmp_path / "scene.xml"
-    path.write_text(
-        """<scene version="3.0.0">
-  <integrator type="path"><integer name="max_depth" value="5"/></integrator>
-  <sensor type="perspective">
-    <transform name="to_world"><lookat origin="0,0,4" target="0,0,0" up="0,1,0"/></transform>
-    <film type="hdrfilm"><integer name="width" value="32"/><integer name="height" value="24"/>
-      <rfilter type="gaussian"/></film>
-  </sensor>
-  <shape type="sphere"><bsdf type="diffuse"/></shape>
-  <shape type="rectangle"><transform name="to_world"><translate z="2"/></transform>
-    <emitter type="area"><rgb name="radiance" value="1"/></emitter></shape>
-</scene>"""
-    )
+    path.write_text(xml_scene(32, 24, 5))
     target = PrimarySampleSpace(path, resolution=(8, 4))
     assert target.resolution == (8, 4) and target.max_depth == 5 and target.dim == dimension(5)
     assert target.scene.sensors()[0].film().rfilter().class_name() == "BoxFilter"
@@ -324,6 +312,39 @@ def test_unsupported_camera_is_rejected(mi):
     scene["sensor"]["aperture_radius"] = 0.1
     with pytest.raises(UnsupportedSceneError, match="aperture"):
         PrimarySampleSpace(scene)
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        (lambda scene: scene.update(integrator={"type": "volpath", "max_depth": 3}), r"`volpath` integrator"),
+        (lambda scene: scene.update(integrator={"type": "direct"}), r"`direct` integrator"),
+        (lambda scene: scene["small-box"].update(interior={"type": "homogeneous", "sigma_t": 1.0}), r"participating media \(Homog"),
+        (lambda scene: scene["sensor"].update(medium={"type": "homogeneous", "sigma_t": 0.1}), r"participating media .*Camera"),
+    ],
+    ids=["volpath", "direct", "interior medium", "sensor medium"],
+)
+def test_light_transport_the_tracer_does_not_model_is_refused(mi, change, message):
+    """Another integrator or participating media would be traced as plain `path`: refused, naming the feature."""
+    scene = cornell_box(resolution=(8, 8), max_depth=3)
+    change(scene)
+    with pytest.raises(UnsupportedSceneError, match=message):
+        PrimarySampleSpace(scene)
+    with pytest.raises(UnsupportedSceneError, match=message):  # Mitsuba's own path tracer would ignore it too
+        render_native(mi.load_dict(scene), 1)
+
+
+def test_scene_changes_are_reported(mi, tmp_path):
+    notes = []
+    load_scene("cornell_box", (8, 8), 2, log=notes.append)
+    assert notes == []  # a built-in scene is ours to set
+    scene = cornell_box(resolution=(8, 6), max_depth=3)
+    scene["sensor"]["film"]["rfilter"] = {"type": "gaussian"}
+    load_scene(scene, log=notes.append)
+    assert notes == ["the film's gaussian reconstruction filter is replaced by a box filter (each path lands in one pixel)"]
+    notes.clear()
+    load_scene(scene, (8, 6), 4, log=notes.append)
+    assert notes[1:] == ["maximum path depth 4 replaces the scene's 3"]
 
 
 def test_find_libllvm_explains_what_to_install(monkeypatch, tmp_path):
@@ -388,3 +409,20 @@ def test_report_paths_per_second(mi):
     print(f"\nCornell box 64x64, max_depth 4: PSS {pss:,.0f} paths/s, native {native:,.0f} paths/s, "
           f"ratio {pss / native:.2f}")
     assert pss > 0 and native > 0
+
+
+def test_cuda_variant_is_preferred_only_when_built_and_usable(mi, monkeypatch):
+    class FakeMitsuba:
+        def __init__(self, variants):
+            self._variants = variants
+
+        def variants(self):
+            return self._variants
+
+    import drjit as dr
+
+    built = FakeMitsuba(["scalar_rgb", "llvm_ad_rgb", "cuda_ad_rgb"])
+    for usable, expected in ((True, "cuda_ad_rgb"), (False, "llvm_ad_rgb")):
+        monkeypatch.setattr(_llvm, "_has_backend", lambda dr, name, usable=usable: name == "LLVM" or usable)
+        assert _llvm.preferred_variant(built, dr) == expected
+    assert _llvm.preferred_variant(FakeMitsuba(["scalar_rgb", "llvm_ad_rgb"]), dr) == "llvm_ad_rgb"

@@ -1,14 +1,14 @@
 """`restore render` and `restore render-compare` on tiny Mitsuba scenes, and their error messages."""
 
-import importlib.util
-
 import numpy as np
 import pytest
 from typer.testing import CliRunner
 
 from restore.cli import app
 
-if not all(importlib.util.find_spec(name) is not None for name in ("mitsuba", "drjit")):
+from ._mitsuba_extra import mitsuba_extra_installed, xml_scene
+
+if not mitsuba_extra_installed():
     pytest.skip("the `mitsuba` extra is not installed", allow_module_level=True)
 
 POINT_LIGHT_XML = """<scene version="3.0.0">
@@ -65,6 +65,51 @@ def test_render_rejects_a_malformed_scene_and_delta_lights_for_gradients(tmp_pat
     point.write_text(POINT_LIGHT_XML)
     result = _invoke("render", point, "--method", "mala-restore", "--time", 1, "--out", tmp_path / "x.exr")
     assert result.exit_code == 2 and "point" in result.output.lower(), result.output
+
+
+
+
+@pytest.fixture
+def traced_depths(monkeypatch):
+    """The maximum depths of the primary-sample-space targets `restore render` builds."""
+    import targets.mitsuba
+
+    depths = []
+
+    class Spy(targets.mitsuba.PrimarySampleSpace):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            depths.append(self.max_depth)
+
+    monkeypatch.setattr(targets.mitsuba, "PrimarySampleSpace", Spy)
+    return depths
+
+
+def test_an_xml_scene_keeps_its_own_size_and_depth_and_changes_are_printed(tmp_path, traced_depths):
+    from restore.render._images import load_image
+
+    scene, out = tmp_path / "mine.xml", tmp_path / "mine.npy"
+    scene.write_text(xml_scene(12, 10, 3))
+    common = ("--method", "uniform", "--evaluations", 2000, "--lanes", 64, "--no-progress", "--out", out)
+    result = _invoke("render", scene, *common)
+    assert result.exit_code == 0, result.output
+    assert load_image(out).shape == (10, 12, 3) and traced_depths == [3]
+    assert "gaussian reconstruction filter is replaced by a box filter" in result.output
+    assert "replaces the scene's" not in result.output
+
+    result = _invoke("render", scene, "--resolution", "8x6", "--max-depth", 2, *common)
+    assert result.exit_code == 0, result.output
+    assert load_image(out).shape == (6, 8, 3) and traced_depths[-1] == 2
+    assert "film size 8x6 replaces the scene's 12x10" in result.output
+    assert "maximum path depth 2 replaces the scene's 3" in result.output
+
+
+def test_render_refuses_a_volumetric_integrator(tmp_path):
+    scene = tmp_path / "fog.xml"
+    scene.write_text(xml_scene(12, 10, 3, integrator="volpath"))
+    for method in ("uniform", "path"):
+        result = _invoke("render", scene, "--method", method, "--evaluations", 1000, "--out", tmp_path / "x.npy")
+        assert result.exit_code == 2 and "`volpath` integrator" in result.output, result.output
 
 
 def test_render_compare_writes_the_table_figures_and_ratios(tmp_path, monkeypatch):

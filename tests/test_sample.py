@@ -73,3 +73,17 @@ def test_mh_results_use_lanes_and_refuse_tours():
         result.estimate("x", method="tours")
     with pytest.raises(KeyError, match="no observable named"):
         result.estimate("y")
+
+
+def test_the_position_stays_available_with_custom_observables():
+    sampler = restore.JumpRestore(std_normal, RandomWalk(1.0), Gaussian(jnp.zeros(2), 2.0), log_rate=0.0)
+    kwargs = dict(num_lanes=16, num_steps=300, progress=False)
+    norm = lambda x: jnp.sum(x**2)
+    result = restore.sample(sampler, jax.random.key(3), observables={"norm": norm}, **kwargs)
+    assert [slot.name for slot in result.observables.slots] == ["norm", "x"]
+    assert result.estimate("x").value.shape == (2,) and np.all(np.abs(result.estimate("x").z_score(0.0)) < 4.5)
+    assert abs(float(result.estimate("norm").z_score(2.0))) < 4.5
+    # A mapping that defines "x" itself keeps its own.
+    own = restore.sample(sampler, jax.random.key(3), observables={"x": norm}, **kwargs)
+    assert [slot.name for slot in own.observables.slots] == ["x"] and own.estimate("x").value.shape == ()
+    np.testing.assert_array_equal(own.estimate("x").value, result.estimate("norm").value)

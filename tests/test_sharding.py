@@ -10,6 +10,7 @@ import json
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -21,6 +22,7 @@ from restore.local import RandomWalk
 from restore.regeneration import Gaussian
 
 NUM_DEVICES = 4
+ROOT = str(Path(__file__).resolve().parents[1])  # the script imports tests._runs
 
 
 def std_normal(x):
@@ -36,6 +38,7 @@ import restore._sample as sample_module
 from restore.dynamics import BrownianMotion
 from restore.local import RandomWalk
 from restore.regeneration import Gaussian
+from tests._runs import ctrl_c_after, record
 
 mode, out = sys.argv[1], sys.argv[2]
 assert len(jax.devices()) == 4, jax.devices()
@@ -72,29 +75,13 @@ for name, (sampler, devices) in runs.items():
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         result = restore.sample(sampler, jax.random.key(7), num_lanes=8, num_steps=200, progress=False, devices=devices)
-    for field in result.sums._fields:
-        arrays[f"{name}/sums/{field}"] = getattr(result.sums, field)
-    arrays[f"{name}/draws"] = result.draws
-    arrays[f"{name}/draw_weights"] = result.draw_weights
-    arrays[f"{name}/histogram_counts"], arrays[f"{name}/histogram_times"] = result.histogram
-    for obs in ("x", "x**2"):
-        est = result.estimate(obs)
-        arrays[f"{name}/estimate/{obs}"] = np.stack([est.value, est.standard_error])
-    arrays[f"{name}/log_z"] = np.asarray(result.normalising_constant().value)
+    record(arrays, name, result)
     report[f"{name}/finishing_steps"] = result.finishing_steps
 if mode == "sharded":  # interrupted after two chunks, then resumed from the checkpoint onto the devices
-    advance, calls = sample_module._advance, []
-    def interrupting(*args, **kwargs):
-        calls.append(1)
-        if len(calls) == 3:
-            raise KeyboardInterrupt
-        return advance(*args, **kwargs)
     kwargs = dict(num_lanes=8, num_steps=200, progress=False, devices=4, checkpoint=out + ".ckpt")
-    sample_module._advance = interrupting
-    with warnings.catch_warnings():
+    with warnings.catch_warnings(), ctrl_c_after(2):
         warnings.simplefilter("ignore")
         partial = restore.sample(jump, jax.random.key(7), **kwargs)
-    sample_module._advance = advance
     report["partial"] = [partial.interrupted, partial.num_steps]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -116,6 +103,7 @@ def runs(tmp_path_factory):
         "XLA_FLAGS": f"--xla_force_host_platform_device_count={NUM_DEVICES}",
         "JAX_PLATFORMS": "cpu",
         "JAX_ENABLE_X64": "1",
+        "PYTHONPATH": os.pathsep.join(p for p in (ROOT, os.environ.get("PYTHONPATH")) if p),
     }
     procs = {
         mode: subprocess.Popen(

@@ -7,7 +7,9 @@ import numpy as np
 import pytest
 
 import restore
-from restore.local import HMC, MALA, BlackJAXKernel, RandomWalk
+from restore.dynamics import BrownianMotion
+from restore.local import HMC, MALA, BlackJAXKernel, RandomWalk, metropolis_accept
+from restore.regeneration import Gaussian
 from restore.testing import stationarity_test
 
 from ._models import (
@@ -17,8 +19,8 @@ from ._models import (
     broad_regeneration,
     jump_restore,
     laplace_regeneration,
-    mixture_10d,
     mixture_2d,
+    mixture_10d,
 )
 
 ALPHA = 1e-3  # family-wise level of each check; negative controls fail far beyond it
@@ -96,3 +98,30 @@ def test_non_invariant_local_kernel_presented_as_invariant_fails():
     sampler = jump_restore(target, UnadjustedRandomWalk(1.0), laplace_regeneration(target), tour_length=5.0)
     report = _check(sampler, target, jax.random.key(23), num_lanes=5000)
     assert not report.passed and report.min_p_value < 1e-10, str(report)
+
+
+class PoweredAcceptance(RandomWalk):
+    """Negative control: a Metropolis test with `(p'/p)^0.8`, which leaves `p^0.8` invariant instead of `p`."""
+
+    def accept(self, key, point, candidate, aux):
+        return metropolis_accept(key, point, candidate, 0.8 * (candidate.logdensity - point.logdensity))
+
+
+def test_acceptance_with_a_power_of_the_ratio_fails_at_the_defaults():
+    """A mild distortion that the projections alone miss: the log density's distribution shows it."""
+    target = mixture_2d()
+    sampler = jump_restore(target, PoweredAcceptance(1.0), broad_regeneration(target), tour_length=2.0)
+    report = stationarity_test(sampler, jax.random.key(1), target.sample)
+    assert not report.passed and report.min_p_value < 1e-8, str(report)
+    assert min(report.p_values, key=report.p_values.get) == "KS log p"
+
+
+def test_an_inexact_simulation_is_reported():
+    """A thinning bound far below the kill rate: every violation is counted and a warning says so."""
+    process = restore.Restore(
+        lambda x: -0.5 * jnp.sum(x**2), BrownianMotion(), Gaussian(jnp.zeros(1), 4.0), log_rate=0.0, bound=0.5
+    )
+    sample = lambda key, n: jax.random.normal(key, (n, 1))
+    with pytest.warns(RuntimeWarning, match="exceeded the thinning bound at [1-9]"):
+        report = stationarity_test(process, jax.random.key(2), sample, num_lanes=500, time=1.0)
+    assert 0 < report.details["num_bound_exceeded"] <= report.details["num_steps"]

@@ -125,7 +125,9 @@ def compare_renderers(
         reference_spp: samples per pixel of the cached reference.
         out_dir: where to write `results.md`, `results.csv` and the figures (nothing written if `None`).
         progress: progress bars for each render.
-        log: called with one line per finished render.
+        log: called with one line per finished render, and with each change made to a
+            scene file (its filter, film size and depth: every method renders the same
+            `resolution` and `max_depth`).
     """
     from targets.mitsuba import PrimarySampleSpace, UnsupportedSceneError, load_scene, native_paths_per_second, reference_image
 
@@ -139,7 +141,7 @@ def compare_renderers(
     for scene_name in scenes:
         scene_key = Path(scene_name).stem
         references[scene_key] = reference = reference_image(scene_name, reference_spp, resolution=resolution, max_depth=max_depth)
-        scene = load_scene(scene_name, resolution, max_depth)
+        scene = load_scene(scene_name, resolution, max_depth, log=lambda note, name=scene_key: say(f"{name}: note: {note}"))
         target = PrimarySampleSpace(scene)
         throughput[scene_key] = (target.paths_per_second(), native_paths_per_second(scene, max_depth=max_depth))
         for method in methods:

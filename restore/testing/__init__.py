@@ -4,7 +4,8 @@ The three checks every sampler of this package passes, with negative controls in
 test suite that must fail them:
 
 1. `stationarity_test`: started from exact target draws, the state at a fixed time is
-   still target-distributed (KS tests on projections, chi-square on modes).
+   still target-distributed (KS tests on projections and on the log density,
+   chi-square on modes).
 2. `ergodicity_test`: from regeneration-started lanes, estimates agree with known
    expectations within their standard errors, and the mean tour duration is `1/c`.
 3. `calibration_test`: over independent replications, z-scores are standard normal.

@@ -57,7 +57,7 @@ def ergodicity_test(
             p_values[f"{name}[{i}]" if z.size > 1 else name] = float(p)
     if log_z is not None and result.is_regenerative:
         stats_ = result.tour_statistics()
-        expected = math.exp(log_z - result.log_rate)
+        expected = math.exp(log_z - result.tour_log_rate)
         z_duration = (stats_.mean_duration - expected) / stats_.mean_duration_se
         details["mean tour duration"] = (stats_.mean_duration, stats_.mean_duration_se, expected)
         p_values["mean tour duration = 1/c"] = float(_two_sided_p(np.asarray(z_duration)))

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -14,27 +16,65 @@ def _run(sampler, keys: Array, positions: Array, time: float, max_steps: int):
         state = sampler.init(key, position)
 
         def cond(loop):
-            _, _, done, steps = loop
+            _, _, done, steps, _ = loop
             return ~done & (steps < max_steps)
 
         def body(loop):
-            state, elapsed, _, steps = loop
+            state, elapsed, _, steps, flaws = loop
             new_state, info = sampler.step(jax.random.fold_in(key, steps), state)
             ends_later = elapsed + info.holding_time > time
             state = jax.tree.map(lambda old, new: jnp.where(ends_later, old, new), state, new_state)
             elapsed = jnp.where(ends_later, elapsed, elapsed + info.holding_time)
-            return state, elapsed, ends_later, steps + 1
+            return state, elapsed, ends_later, steps + 1, flaws + _flaws(info, ~ends_later)
 
-        zero = jnp.zeros((), positions.dtype)
-        state, elapsed, done, steps = jax.lax.while_loop(cond, body, (state, zero, jnp.zeros((), bool), jnp.zeros((), jnp.int32)))
+        zero, count = jnp.zeros((), positions.dtype), jnp.zeros((), jnp.int32)
+        loop = (state, zero, jnp.zeros((), bool), count, jnp.zeros((2,), jnp.int32))
+        state, elapsed, done, steps, flaws = jax.lax.while_loop(cond, body, loop)
         advance = getattr(sampler, "advance_position", None)
         if advance is None:
-            return state.position, done, steps
+            return state.position, done, steps, flaws
         # Diffusions move on between events: the event that would end the wait comes after
         # `time`, and (memoryless, independent of the path) the path to `time` is a fresh one.
-        return advance(jax.random.fold_in(key, 2**31 - 1), state, time - elapsed), done, steps
+        return advance(jax.random.fold_in(key, 2**31 - 1), state, time - elapsed), done, steps, flaws
 
     return jax.vmap(one_lane)(keys, positions)
+
+
+def _flaws(info, counted: Array) -> Array:
+    """Counts of the step's departures from the exact process: `(bound exceeded, negative rate)`."""
+    exceeded = getattr(info, "bound_ratio", jnp.zeros(())) > 1
+    negative = getattr(info, "negative_rate", jnp.zeros((), bool))
+    return jnp.stack([exceeded & counted, negative & counted]).astype(jnp.int32)
+
+
+class FixedTimeRun(NamedTuple):
+    """The states at a fixed time, with what the simulation did to get there.
+
+    Attributes:
+        states: `(n, d)`, the states at the fixed time.
+        steps: steps each lane took.
+        num_bound_exceeded: thinning candidates, over all lanes, where the kill rate
+            exceeded the bound `Gamma` (the kill was too rare there: not the exact process).
+        num_negative_rate: states where the kill rate was negative (`c_tilde` too small).
+    """
+
+    states: Array
+    steps: Array
+    num_bound_exceeded: int
+    num_negative_rate: int
+
+
+def simulate_to_time(sampler, key: PRNGKeyArray, positions: Array, time: float, max_steps: int = 100_000) -> FixedTimeRun:
+    """`fixed_time_states`, also counting the steps where the simulation was not exact."""
+    if not time > 0:
+        raise ValueError(f"time must be positive, got {time!r}")
+    positions = jnp.asarray(positions)
+    keys = jax.vmap(lambda i: jax.random.fold_in(key, i))(jnp.arange(positions.shape[0]))
+    states, done, steps, flaws = _run(sampler, keys, positions, float(time), int(max_steps))
+    if not bool(jnp.all(done)):
+        raise RuntimeError(f"{int(jnp.sum(~done))} lanes did not reach time {time} within {max_steps} steps")
+    exceeded, negative = (int(n) for n in jnp.sum(flaws, axis=0))
+    return FixedTimeRun(states, steps, exceeded, negative)
 
 
 def fixed_time_states(sampler, key: PRNGKeyArray, positions: Array, time: float, max_steps: int = 100_000) -> tuple[Array, Array]:
@@ -60,11 +100,5 @@ def fixed_time_states(sampler, key: PRNGKeyArray, positions: Array, time: float,
         States at time `t`, `(n, d)`, and the number of steps each lane used. A lane that
         hit `max_steps` raises a `RuntimeError`.
     """
-    if not time > 0:
-        raise ValueError(f"time must be positive, got {time!r}")
-    positions = jnp.asarray(positions)
-    keys = jax.vmap(lambda i: jax.random.fold_in(key, i))(jnp.arange(positions.shape[0]))
-    states, done, steps = _run(sampler, keys, positions, float(time), int(max_steps))
-    if not bool(jnp.all(done)):
-        raise RuntimeError(f"{int(jnp.sum(~done))} lanes did not reach time {time} within {max_steps} steps")
-    return states, steps
+    run = simulate_to_time(sampler, key, positions, time, max_steps)
+    return run.states, run.steps

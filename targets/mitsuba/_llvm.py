@@ -98,8 +98,8 @@ def load_mitsuba(variant: str | None = None) -> ModuleType:
 
     Sets `DRJIT_LIBLLVM_PATH` (from `find_libllvm`) before `drjit` is first imported;
     if `drjit` is already imported this step is skipped. With `variant=None` an already
-    selected supported variant is kept, else `cuda_ad_rgb` is used when a CUDA device
-    works and `llvm_ad_rgb` otherwise.
+    selected supported variant is kept, else `cuda_ad_rgb` is used when Mitsuba was built
+    with it and a CUDA device works, and `llvm_ad_rgb` otherwise (`preferred_variant`).
 
     Arguments:
         variant: `None`, `"llvm_ad_rgb"` or `"cuda_ad_rgb"`.
@@ -136,14 +136,23 @@ def load_mitsuba(variant: str | None = None) -> ModuleType:
         current = mi.variant()
         if current in SUPPORTED_VARIANTS:
             return mi
-        variant = "cuda_ad_rgb" if _has_backend(dr, "CUDA") else "llvm_ad_rgb"
+        variant = preferred_variant(mi, dr)
     if variant.startswith("llvm"):
         _check_llvm_backend(dr, llvm_error)
+    if variant.startswith("cuda") and variant not in mi.variants():
+        raise ValueError(f"variant {variant!r} was requested but this Mitsuba build has only {mi.variants()}")
     if variant.startswith("cuda") and not _has_backend(dr, "CUDA"):
         raise ValueError("variant 'cuda_ad_rgb' was requested but no working CUDA device was found")
     if mi.variant() != variant:
         mi.set_variant(variant)
     return mi
+
+
+def preferred_variant(mi: ModuleType, dr: ModuleType) -> str:
+    """`"cuda_ad_rgb"` when this Mitsuba build has it and Dr.Jit can use a CUDA device, else `"llvm_ad_rgb"`."""
+    if "cuda_ad_rgb" in mi.variants() and _has_backend(dr, "CUDA"):
+        return "cuda_ad_rgb"
+    return "llvm_ad_rgb"
 
 
 def _check_llvm_backend(dr: ModuleType, llvm_error: LLVMNotFoundError | None) -> None:

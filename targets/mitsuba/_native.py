@@ -20,7 +20,7 @@ import numpy as np
 from restore._io import atomic_write
 
 from ._llvm import load_mitsuba
-from ._scene_checks import path_settings
+from ._scene_checks import check_path_model, path_settings
 from ._scenes import DEFAULT_MAX_DEPTH, is_scene_file, load_scene, scene_dict
 
 MAX_LANES = 1 << 22  # paths per native render call (bounds memory)
@@ -203,7 +203,12 @@ def _exr_threads() -> Iterator[None]:
 
 
 def _integrator(mi: Any, scene: Any, max_depth: int | None) -> Any:
-    """A `path` integrator: the scene's own, or one with `max_depth` and the scene's `rr_depth`."""
+    """A `path` integrator: the scene's own, or one with `max_depth` and the scene's `rr_depth`.
+
+    A scene with another integrator or with participating media is refused
+    (`UnsupportedSceneError`): a `path` render of it would not be the scene's image.
+    """
+    check_path_model(scene)
     settings = path_settings(scene)
     if max_depth is None:
         if scene.integrator() is not None and scene.integrator().class_name() == "PathIntegrator":

@@ -1,8 +1,9 @@
 """What the primary-sample-space tracer supports in a loaded scene, and the scene's path settings.
 
 The tracer models a pinhole-like camera (no aperture or time samples), a box-filtered
-film (one pixel per path) and Mitsuba's `path` integrator. Delta lights (point, spot,
-directional) are fine for evaluation but not for gradient-based moves.
+film (one pixel per path) and Mitsuba's `path` integrator, without participating media.
+Delta lights (point, spot, directional) are fine for evaluation but not for
+gradient-based moves.
 """
 
 from __future__ import annotations
@@ -67,6 +68,7 @@ def check_tracer_support(scene: Any) -> None:
             "target needs a box filter ({'type': 'box'}) so that each path lands in one pixel "
             "(`load_scene` sets it automatically)"
         )
+    check_path_model(scene)
     integrator = scene.integrator()
     if integrator is not None and getattr(integrator, "hide_emitters", False):
         raise UnsupportedSceneError("the integrator hides directly visible emitters (hide_emitters); not supported")
@@ -77,6 +79,67 @@ def check_tracer_support(scene: Any) -> None:
             "pixels are supported (pass a smaller resolution)"
         )
     _check_camera_rays(sensor)
+
+
+#: Mitsuba's plugin names of its integrators, by class name (for messages).
+_INTEGRATOR_PLUGINS = {
+    "VolumetricPathIntegrator": "volpath",
+    "VolumetricMISPathIntegrator": "volpathmis",
+    "DirectIntegrator": "direct",
+    "AOVIntegrator": "aov",
+    "ParticleTracerIntegrator": "ptracer",
+    "PRBIntegrator": "prb",
+    "PRBVolpathIntegrator": "prbvolpath",
+    "MomentIntegrator": "moment",
+    "StokesIntegrator": "stokes",
+    "DepthIntegrator": "depth",
+}
+
+
+def check_path_model(scene: Any) -> None:
+    """Raise `UnsupportedSceneError` unless the scene's light transport is what the tracer
+    computes: Mitsuba's `path` integrator, with no participating media.
+
+    Any other integrator (`volpath`, `direct`, `ptracer`, ...) would otherwise be traced
+    as `path` without a word, and media would be ignored (as `path` ignores them).
+    """
+    integrator = scene.integrator()
+    if integrator is not None and integrator.class_name() != "PathIntegrator":
+        name = integrator.class_name()
+        plugin = _INTEGRATOR_PLUGINS.get(name)
+        described = f"the `{plugin}` integrator ({name})" if plugin else f"a {name}"
+        raise UnsupportedSceneError(
+            f"the scene uses {described}; the primary-sample-space tracer reproduces Mitsuba's `path` "
+            "integrator only (no volumes, no other estimators): use <integrator type=\"path\"> "
+            "(or {'type': 'path'} in a scene dictionary)"
+        )
+    media = participating_media(scene)
+    if media:
+        raise UnsupportedSceneError(
+            f"the scene has participating media ({', '.join(media)}); the primary-sample-space tracer, like "
+            "Mitsuba's `path` integrator, ignores them, so the image would not be the scene's: remove the "
+            "media (interior/exterior media of shapes, the sensor's or emitters' medium)"
+        )
+
+
+def participating_media(scene: Any) -> list[str]:
+    """Where the scene has participating media: shapes' interiors and exteriors, sensors, emitters."""
+    found = []
+
+    def describe(obj: Any, what: str) -> str:
+        name = obj.id() if hasattr(obj, "id") else ""
+        return f"{what} '{name}'" if name else what
+
+    for shape in scene.shapes():
+        for side in ("interior", "exterior"):
+            medium = getattr(shape, f"{side}_medium", lambda: None)()
+            if medium is not None:
+                found.append(f"{medium.class_name()} as the {side} of {describe(shape, shape.class_name())}")
+    for endpoint in list(scene.sensors()) + list(scene.emitters()):
+        medium = endpoint.get_medium() if hasattr(endpoint, "get_medium") else None
+        if medium is not None:
+            found.append(f"{medium.class_name()} around {describe(endpoint, endpoint.class_name())}")
+    return found
 
 
 #: Pixel indices `y W + x` are int32 (NumPy and JAX images).

@@ -12,6 +12,7 @@ breaks gradient-based moves.
 from __future__ import annotations
 
 import copy
+import logging
 import os
 import tempfile
 from collections.abc import Callable, Mapping, Sequence
@@ -328,13 +329,19 @@ SCENES: dict[str, Callable[..., dict[str, Any]]] = {
 
 
 def scene_dict(
-    spec: str | Mapping[str, Any], resolution: Sequence[int] | None = None, max_depth: int | None = None
+    spec: str | Mapping[str, Any],
+    resolution: Sequence[int] | None = None,
+    max_depth: int | None = None,
+    log: Callable[[str], object] | None = None,
 ) -> dict[str, Any]:
     """The scene dictionary for a registry name or a dictionary, with the overrides applied.
 
     For a user dictionary, `resolution` and `max_depth` replace the film size and the
     `path` integrator depth (other integrator settings, e.g. `rr_depth`, are kept; a
-    scene without a `path` integrator gets one); the film's filter is always a box.
+    scene without an integrator gets a `path` one; another integrator is left for
+    `PrimarySampleSpace` to refuse); the film's filter is always a box. Each change to the
+    user's settings is described by a sentence passed to `log` (default: the
+    `targets.mitsuba` logger, at INFO level).
     """
     if isinstance(spec, str):
         if spec not in SCENES:
@@ -347,18 +354,25 @@ def scene_dict(
         return SCENES[spec](**kwargs)
     if not isinstance(spec, Mapping):
         raise TypeError(f"a scene must be a name, a dict or a path, got {type(spec).__name__}")
+    log = log or _logger.info
     scene = _copy_dict(spec)
     sensors = [v for v in scene.values() if isinstance(v, dict) and v.get("type") in _SENSOR_TYPES]
     for sensor in sensors:
         film = sensor.setdefault("film", {"type": "hdrfilm"})
+        rfilter = film.get("rfilter")
+        _note_filter(rfilter.get("type") if isinstance(rfilter, Mapping) else None, log)
         film["rfilter"] = {"type": "box"}
         if resolution is not None:
-            film["width"], film["height"] = _resolution(resolution)
+            size = _resolution(resolution)
+            _note_change("film size", "x".join(map(str, size)), f"{film.get('width', 768)}x{film.get('height', 576)}", log)
+            film["width"], film["height"] = size
     if max_depth is not None:
         integrators = [k for k, v in scene.items() if isinstance(v, dict) and v.get("type") == "path"]
         for key in integrators:
+            _note_change("maximum path depth", str(_max_depth(max_depth)), str(scene[key].get("max_depth", -1)), log)
             scene[key]["max_depth"] = _max_depth(max_depth)
-        if not integrators:
+        if not integrators and "integrator" not in scene:
+            _note_change("maximum path depth", str(_max_depth(max_depth)), "-1 (unbounded)", log)
             scene["integrator"] = _path_integrator(max_depth)
     return scene
 
@@ -367,6 +381,7 @@ def load_scene(
     spec: str | Path | Mapping[str, Any],
     resolution: Sequence[int] | None = None,
     max_depth: int | None = None,
+    log: Callable[[str], object] | None = None,
 ) -> Any:
     """Load a scene as an `mi.Scene` (the Mitsuba variant is chosen by `load_mitsuba`).
 
@@ -375,6 +390,10 @@ def load_scene(
             XML file (see `is_scene_file`).
         resolution: `(width, height)` of the film, or `None` to keep the scene's.
         max_depth: the `path` integrator's maximum depth, or `None` to keep the scene's.
+        log: called with a sentence for each setting of a user's scene (dictionary or
+            file) that is changed: the reconstruction filter, and the film size and depth
+            where they differ from the scene's. Default: the `targets.mitsuba` logger,
+            at INFO level.
 
     The film's reconstruction filter is replaced by a box filter (XML files included):
     the primary-sample-space target assigns each path to exactly one pixel.
@@ -387,8 +406,8 @@ def load_scene(
     """
     mi = _mi()
     if is_scene_file(spec):
-        return _load_xml(mi, Path(spec), resolution, max_depth)
-    scene = scene_dict(spec, resolution, max_depth)
+        return _load_xml(mi, Path(spec), resolution, max_depth, log or _logger.info)
+    scene = scene_dict(spec, resolution, max_depth, log)
     try:
         return mi.load_dict(scene)
     except Exception as err:
@@ -421,7 +440,7 @@ def _copy_dict(d: Mapping[str, Any]) -> dict[str, Any]:
     return out
 
 
-def _load_xml(mi: Any, path: Path, resolution: Sequence[int] | None, max_depth: int | None) -> Any:
+def _load_xml(mi: Any, path: Path, resolution: Sequence[int] | None, max_depth: int | None, log: Callable[[str], object]) -> Any:
     path = path.expanduser()
     if path.is_dir():
         raise ValueError(f"{str(path)!r} is a directory, not a Mitsuba scene file")
@@ -438,7 +457,7 @@ def _load_xml(mi: Any, path: Path, resolution: Sequence[int] | None, max_depth: 
         raise ValueError(
             f"the file {str(path)!r} does not describe a Mitsuba scene: its root element is <{root.tag}>, not <scene>"
         )
-    _override_xml(root, resolution, max_depth)
+    _override_xml(root, resolution, max_depth, log)
     # Written beside the original, so that relative paths (meshes, textures, includes) still resolve.
     try:
         fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}-", suffix=".xml", dir=path.parent)
@@ -460,31 +479,57 @@ def _load_xml(mi: Any, path: Path, resolution: Sequence[int] | None, max_depth: 
     return scene
 
 
-def _set_child(parent: ElementTree.Element, tag: str, name: str, value: str) -> None:
+def _set_child(parent: ElementTree.Element, tag: str, name: str, value: str) -> str | None:
+    """Set `<tag name=name value=value/>` in `parent`; returns the value it replaces (`None` if unset)."""
+    before = None
     for child in parent.findall(tag):
         if child.get("name") == name:
+            before = child.get("value")
             parent.remove(child)
     ElementTree.SubElement(parent, tag, name=name, value=value)
+    return before
 
 
-def _override_xml(root: ElementTree.Element, resolution: Sequence[int] | None, max_depth: int | None) -> None:
+def _override_xml(
+    root: ElementTree.Element, resolution: Sequence[int] | None, max_depth: int | None, log: Callable[[str], object]
+) -> None:
     """Box filters on every film, then the resolution and `path` depth overrides, on the XML tree.
 
     A sensor without a film gets an `hdrfilm` (Mitsuba's default film, whose default filter
-    is Gaussian), so that its filter can be set too.
+    is Gaussian), so that its filter can be set too; with a `max_depth`, a scene without an
+    integrator gets a `path` one. Each change is described to `log`.
     """
     for sensor in root.iter("sensor"):
         if sensor.find("film") is None:
             ElementTree.SubElement(sensor, "film", type="hdrfilm")
     for film in root.iter("film"):
-        for rfilter in film.findall("rfilter"):
+        filters = film.findall("rfilter")
+        _note_filter(filters[0].get("type") if filters else None, log)
+        for rfilter in filters:
             film.remove(rfilter)
         ElementTree.SubElement(film, "rfilter", type="box")
         if resolution is not None:
             width, height = _resolution(resolution)
-            _set_child(film, "integer", "width", str(width))
-            _set_child(film, "integer", "height", str(height))
+            before = (_set_child(film, "integer", "width", str(width)), _set_child(film, "integer", "height", str(height)))
+            _note_change("film size", f"{width}x{height}", f"{before[0] or 768}x{before[1] or 576}", log)
     if max_depth is not None:
+        if root.find("integrator") is None:  # Mitsuba's default: `path` without a depth limit
+            ElementTree.SubElement(root, "integrator", type="path")
         for integrator in root.iter("integrator"):
             if integrator.get("type") == "path":
-                _set_child(integrator, "integer", "max_depth", str(_max_depth(max_depth)))
+                before = _set_child(integrator, "integer", "max_depth", str(_max_depth(max_depth)))
+                _note_change("maximum path depth", str(_max_depth(max_depth)), before or "-1 (unbounded)", log)
+
+
+_logger = logging.getLogger("targets.mitsuba")
+
+
+def _note_filter(kind: str | None, log: Callable[[str], object]) -> None:
+    if kind != "box":
+        kind = f"{kind}" if kind else "default (gaussian)"
+        log(f"the film's {kind} reconstruction filter is replaced by a box filter (each path lands in one pixel)")
+
+
+def _note_change(what: str, new: str, old: str, log: Callable[[str], object]) -> None:
+    if str(new) != str(old):
+        log(f"{what} {new} replaces the scene's {old}")

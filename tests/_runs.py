@@ -1,0 +1,38 @@
+"""Helpers for the subprocess scripts of the tests that run one sampler in several layouts."""
+
+import contextlib
+
+import numpy as np
+
+
+def record(arrays: dict, name: str, result) -> None:
+    """Add `result`'s per-lane sums, draws, histogram and estimates to `arrays`, under `name/`."""
+    for field in result.sums._fields:
+        arrays[f"{name}/sums/{field}"] = getattr(result.sums, field)
+    arrays[f"{name}/draws"] = result.draws
+    arrays[f"{name}/draw_weights"] = result.draw_weights
+    arrays[f"{name}/histogram_counts"], arrays[f"{name}/histogram_times"] = result.histogram
+    for obs in ("x", "x**2"):
+        est = result.estimate(obs)
+        arrays[f"{name}/estimate/{obs}"] = np.stack([est.value, est.standard_error])
+    arrays[f"{name}/log_z"] = np.asarray(result.normalising_constant().value)
+
+
+@contextlib.contextmanager
+def ctrl_c_after(chunks: int):
+    """Inside, `restore.sample` is interrupted (`KeyboardInterrupt`) when it starts chunk `chunks + 1`."""
+    import restore._sample as sample_module
+
+    advance, calls = sample_module._advance, []
+
+    def interrupting(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == chunks + 1:
+            raise KeyboardInterrupt
+        return advance(*args, **kwargs)
+
+    sample_module._advance = interrupting
+    try:
+        yield
+    finally:
+        sample_module._advance = advance

@@ -1,0 +1,47 @@
+"""`examples/gpu_check.py`: throughput on a GPU, and a clear message without one.
+
+The test marked `gpu` is deselected by default (`pytest -m gpu` runs it) and skipped on a
+machine where JAX sees no GPU; the default suite checks only what happens without one.
+"""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import jax
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SCRIPT = ROOT / "examples" / "gpu_check.py"
+
+
+def _has_gpu() -> bool:
+    try:
+        return bool(jax.devices("gpu"))
+    except RuntimeError:
+        return False
+
+
+def _run(*args: str) -> subprocess.CompletedProcess:
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in (str(ROOT), os.environ.get("PYTHONPATH")) if p)}
+    return subprocess.run([sys.executable, str(SCRIPT), *args], env=env, capture_output=True, text=True, timeout=900, check=False)
+
+
+@pytest.mark.skipif(_has_gpu(), reason="this machine has a GPU")
+def test_without_a_gpu_the_check_says_so_and_skips():
+    done = _run()
+    assert done.returncode == 0, done.stderr
+    assert "skipped, no GPU" in done.stdout and "pip install -e '.[cuda]'" in done.stdout
+    assert "steps/s" not in done.stdout
+    assert _run("--require-gpu").returncode == 1
+
+
+@pytest.mark.gpu
+@pytest.mark.skipif(not _has_gpu(), reason="JAX sees no GPU")
+def test_sampler_and_renderer_run_on_the_gpu():
+    done = _run("--quick", "--require-gpu")
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "GPU(s)" in done.stdout and "steps/s" in done.stdout
+    if "render: skipped" not in done.stdout:
+        assert "cuda_ad_rgb" in done.stdout and "paths/s" in done.stdout
