@@ -47,7 +47,7 @@ def summary_rows(rows: list[dict]) -> list[dict]:
         notes = list(dict.fromkeys(n for r in rs for n in r["notes"].split("; ") if n))
         out.append({
             "problem": problem, "method": method, "runs": ", ".join(f"{n} {s}" for s, n in statuses.items() if n),
-            "errors": ", ".join(f"{e:+.3g}" for e in errors) if errors else "-",
+            "errors": ", ".join(f"{e:+#.3g}" for e in errors) if errors else "-",
             "rms_error": float(np.sqrt(np.mean(np.square(errors)))) if errors else math.nan,
             "log_z_se": _median(done, "log_z_se"), "log_z_z": _largest(done, "log_z_z"), "k_hat": _largest(done, "k_hat"),
             "reliable": ", ".join(sorted({r["reliable"] for r in done if r["reliable"]})) or "-",
@@ -92,10 +92,12 @@ def markdown(result) -> str:
     lines += ["## Methods", "", *_settings(cfg), "", "## Results", ""]
     lines += [
         "`log Z error`: estimate minus truth, per seed (nats). `SE`: the median standard error the method reported. "
-        "`|z|`: the largest |error / SE| over seeds. `k_hat`, `reliable`: the method's own tail diagnostic and verdict, "
+        "`|z|`: the largest |error / SE| over seeds (signed). `k_hat`, `reliable`: the method's own tail diagnostic and verdict, "
         "where it reports them. `max |z| moments`: the largest |z| of the means and second moments of all coordinates, "
         "where the method reports standard errors (up to about 3 is expected from 2d z-scores). `mean err`, `2nd err`: "
-        "RMS over coordinates in marginal standard deviations (variances). Evaluations, run time (compilation excluded): "
+        "RMS over coordinates in marginal standard deviations (variances). `P(x1 > 0)`: the median over seeds of the "
+        "estimated share of double-well coordinates in the right well, with the largest z-score where the method reports "
+        "a standard error. Evaluations, run time (compilation excluded; for a failed run, the time until it failed): "
         "medians over seeds; compile: the largest.",
     ]
     summary = summary_rows(result.rows)
@@ -114,7 +116,7 @@ def markdown(result) -> str:
             f"### {name}: {problem.title}",
             "",
             f"Exact log Z = **{problem.log_normalising_constant:.6f}**. Box {box}"
-            + (f"; {ref.outside_share:.2g} of {cfg.reference_draws:,} exact draws fall outside it." if ref is not None else "."),
+            + (f"; {round(ref.outside_share * cfg.reference_draws):,} of {cfg.reference_draws:,} exact draws fall outside it." if ref is not None else "."),
         ]
         wells = problem.has_wells
         head = "| method | runs | log Z error | RMS error | SE | \\|z\\| | k_hat | reliable | max \\|z\\| moments | mean err | 2nd err |"
@@ -128,7 +130,8 @@ def markdown(result) -> str:
                 s["reliable"], _fmt(s["max_z"]), _fmt(s["mean_error"]), _fmt(s["second_moment_error"]),
             ]
             if wells:
-                cells.append(_fmt(s["positive"], 4))
+                z = f" (z {_fmt(s['positive_z'])})" if math.isfinite(s["positive_z"]) else ""
+                cells.append(_fmt(s["positive"], 4) + z)
             cells += [_fmt(s["evaluations"]), _fmt(s["run_time"]), _fmt(s["compile_time"]), s["notes"].replace("|", "/")]
             lines.append("| " + " | ".join(cells) + " |")
     lines += machine_table(result.machine)
