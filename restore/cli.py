@@ -92,6 +92,9 @@ def bench(
     problems: str | None = typer.Option(None, help="Comma-separated problems to run (default: all of the mode)."),
     samplers: str | None = typer.Option(None, help="Comma-separated sampler-name prefixes to keep, e.g. 'restore-rw,mh-rw,emcee'."),
     progress: bool = typer.Option(True, help="Show a progress bar over the runs (without it: one line per run)."),
+    evidence: bool = typer.Option(
+        False, "--evidence", help="The evidence benchmark instead: log Z of Restore, tempered SMC and nested sampling (evidence.csv, evidence.md)."
+    ),
 ) -> None:
     """Jump Restore against the MH baseline, emcee and BlackJAX, at equal evaluations and equal wall time."""
     import jax
@@ -102,6 +105,12 @@ def bench(
     if quick and medium:
         console.print("[red]error:[/] choose at most one of --quick and --medium")
         raise typer.Exit(code=1)
+    if evidence:
+        if medium:
+            console.print("[red]error:[/] --evidence has a full and a --quick mode, no --medium")
+            raise typer.Exit(code=1)
+        _evidence(quick, out, seeds, problems, samplers, progress)
+        return
     config = SuiteConfig.quick() if quick else SuiteConfig.medium() if medium else SuiteConfig.full()
     changes = {k: v for k, v in (("seeds", seeds), ("problems", _names(problems)), ("samplers", _names(samplers))) if v is not None}
     try:
@@ -127,6 +136,33 @@ def bench(
     if result.interrupted:
         console.print(f"[bold yellow]Interrupted by Ctrl-C:[/] the files hold the {len(result.rows)} runs that finished.")
     console.print(f"Suite took {result.seconds / 60:.1f} min. Files:")
+    for path in result.files.values():
+        console.print(f"  {path}")
+
+
+def _evidence(quick: bool, out: Path, seeds: int | None, problems: str | None, samplers: str | None, progress: bool) -> None:
+    """`restore bench --evidence`: run the evidence benchmark and print its summary."""
+    from .bench import EvidenceConfig, run_evidence
+    from .bench._evidence_report import summary_rows
+
+    config = EvidenceConfig.quick() if quick else EvidenceConfig.full()
+    changes = {k: v for k, v in (("seeds", seeds), ("problems", _names(problems)), ("samplers", _names(samplers))) if v is not None}
+    try:
+        config = config.replace(**changes)
+    except ValueError as err:
+        console.print(f"[red]error:[/] {err}")
+        raise typer.Exit(code=1) from None
+    console.print(f"[bold]{config.name} evidence benchmark:[/] {', '.join(config.problems)}; {config.seeds} seed(s)")
+    result = run_evidence(config, out, progress=progress, log=None if progress else console.print)
+    table = Table(title="log Z error (estimate - truth) per seed")
+    for column, justify in (("problem", "left"), ("method", "left"), ("runs", "left"), ("log Z error", "right"), ("evaluations", "right"), ("run time (s)", "right")):
+        table.add_column(column, justify=justify)
+    for s in summary_rows(result.rows):
+        table.add_row(s["problem"], s["method"], s["runs"], s["errors"], f"{s['evaluations']:,.0f}" if s["evaluations"] == s["evaluations"] else "-", f"{s['run_time']:.1f}")
+    console.print(table)
+    if result.interrupted:
+        console.print(f"[bold yellow]Interrupted by Ctrl-C:[/] the files hold the {len(result.rows)} runs that finished.")
+    console.print(f"Evidence benchmark took {result.seconds / 60:.1f} min. Files:")
     for path in result.files.values():
         console.print(f"  {path}")
 

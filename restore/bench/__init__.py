@@ -5,16 +5,35 @@ built from them), the same target evaluations and the same wall time as jump Res
 measured in the same run, on problems with exact answers. `run_suite(SuiteConfig.quick(),
 "out/")` writes `results.csv`, `results.md` and plots; `restore bench` runs it from the
 command line. See `docs/comparison.md`.
+
+The evidence benchmark (`run_evidence(EvidenceConfig.quick(), "out/")`, or `restore bench
+--evidence`) compares the normalising constants of Restore, BlackJAX's adaptive tempered
+SMC and dynesty's nested sampler on problems with an exact `log Z`, writing `evidence.csv`
+and `evidence.md`.
 """
 
 from ._blackjax_runner import BlackJAXRunner as BlackJAXRunner
 from ._config import SuiteConfig as SuiteConfig
 from ._emcee_runner import EmceeRunner as EmceeRunner
+from ._evidence import EvidenceConfig as EvidenceConfig
+from ._evidence import EvidenceResult as EvidenceResult
+from ._evidence import run_evidence as run_evidence
+from ._evidence_problems import EVIDENCE_PROBLEMS as EVIDENCE_PROBLEMS
+from ._evidence_problems import EvidenceProblem as EvidenceProblem
+from ._evidence_problems import EvidenceReference as EvidenceReference
+from ._evidence_problems import get_evidence_problem as get_evidence_problem
+from ._evidence_report import write_evidence as write_evidence
+from ._evidence_restore import AutosampleRunner as AutosampleRunner
+from ._evidence_restore import LaplaceRestoreRunner as LaplaceRestoreRunner
+from ._evidence_runner import CountedDensity as CountedDensity
+from ._evidence_runner import EvidenceOutput as EvidenceOutput
+from ._evidence_runner import EvidenceRunner as EvidenceRunner
 from ._exact_runner import ExactRunner as ExactRunner
 from ._metrics import median_bandwidth as median_bandwidth
 from ._metrics import mmd as mmd
 from ._metrics import pooled_rms as pooled_rms
 from ._metrics import score as score
+from ._nested_runner import DynestyRunner as DynestyRunner
 from ._plots import plot_curves as plot_curves
 from ._plots import plot_ratios as plot_ratios
 from ._problems import PROBLEMS as PROBLEMS
@@ -30,6 +49,7 @@ from ._restore_runners import MixtureMHRunner as MixtureMHRunner
 from ._runner import Budget as Budget
 from ._runner import Runner as Runner
 from ._runner import RunOutput as RunOutput
+from ._smc_runner import TemperedSMCRunner as TemperedSMCRunner
 from ._starting import StartingInformation as StartingInformation
 from ._starting import starting_information as starting_information
 from ._suite import SuiteResult as SuiteResult

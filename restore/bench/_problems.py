@@ -24,8 +24,23 @@ class Reference(NamedTuple):
     bandwidth: float  # Gaussian-kernel bandwidth, median heuristic on `draws`
 
 
+class BuiltTarget:
+    """The analytic target of a problem, built once from its `make_target`, and its dimension."""
+
+    make_target: Callable[[], object]
+
+    @functools.cached_property
+    def target(self):
+        """The analytic target (built once)."""
+        return self.make_target()
+
+    @property
+    def dim(self) -> int:
+        return int(self.target.dim)
+
+
 @dataclass(frozen=True, eq=False)
-class Problem:
+class Problem(BuiltTarget):
     """One benchmark problem: a target with exact reference quantities and the tuning every sampler gets.
 
     The local-kernel parameters are fixed by hand per problem (documented in the results
@@ -43,15 +58,6 @@ class Problem:
     hmc_steps: int
     num_starts: int = 64
     tour_length: float = 10.0
-
-    @functools.cached_property
-    def target(self):
-        """The analytic target (built once)."""
-        return self.make_target()
-
-    @property
-    def dim(self) -> int:
-        return int(self.target.dim)
 
     @property
     def multimodal(self) -> bool:

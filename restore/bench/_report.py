@@ -70,6 +70,11 @@ def machine_description() -> dict[str, str]:
     }
 
 
+def machine_table(machine: dict[str, str]) -> list[str]:
+    """The `## Machine` section of a results page: one table row per entry of `machine_description`."""
+    return ["", "## Machine", "", "| | |", "|---|---|", *(f"| {k} | {v} |" for k, v in machine.items())]
+
+
 def _fmt(x, digits: int = 3) -> str:
     if x is None or (isinstance(x, float) and not math.isfinite(x)):
         return "-"
@@ -166,8 +171,7 @@ def markdown(result) -> str:
             lines += ["", f"![error against run time, {problem}](curves-{problem}.png)"]
     if "ratios" in result.files:
         lines += ["", "![recorded ratios](ratios.png)"]
-    lines += ["", "## Machine", "", "| | |", "|---|---|"]
-    lines += [f"| {k} | {v} |" for k, v in result.machine.items()]
+    lines += machine_table(result.machine)
     return "\n".join(lines) + "\n"
 
 

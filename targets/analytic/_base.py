@@ -28,7 +28,8 @@ class AbstractTarget(eqx.Module):
 
     @abc.abstractmethod
     def logdensity(self, x: Float[Array, " d"]) -> Float[Array, ""]:
-        """Normalised log density (it integrates to one) of one point.
+        """Log density of one point: normalised (it integrates to one) unless
+        `log_normalising_constant` says otherwise.
 
         Arguments:
             x: a single point of shape `(d,)`; use `jax.vmap` for batches.
@@ -36,6 +37,15 @@ class AbstractTarget(eqx.Module):
         Returns:
             A scalar. Works under `jit`, `vmap` and `grad`; never NaN for finite `x`.
         """
+
+    @property
+    def log_normalising_constant(self) -> float:
+        """The exact `log Z = log ∫ exp(logdensity(x)) dx`: 0 for a normalised target.
+
+        Targets given in an unnormalised form from the literature (e.g. `ManyWell`) report
+        their exact, non-zero value here.
+        """
+        return 0.0
 
     def sample(self, key: PRNGKeyArray, n: int) -> Float[Array, "n d"]:
         """Exact, independent draws (compiled with `eqx.filter_jit`).
