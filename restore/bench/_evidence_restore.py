@@ -24,23 +24,18 @@ def _estimate(result, name: str):
 
 
 def read_result(result, problem, evaluations: int, clock: Stopwatch, caught) -> EvidenceOutput:
-    """An `EvidenceOutput` from a Restore result: `log Z` from the tours, estimates with standard errors.
-
-    `k_hat` and `reliable` are read from the `log Z` estimate where the result provides
-    them (NaN and `None` otherwise).
-    """
+    """An `EvidenceOutput` from a Restore result: `log Z` from the tours with its tail shape
+    `k_hat` and reliability, estimates with standard errors."""
     log_z = result.normalising_constant()
     mean, mean_se = _estimate(result, "x")
     second, second_se = _estimate(result, "x**2")
     positive, positive_se = _estimate(result, "positive") if problem.has_wells else (None, None)
-    k_hat = getattr(log_z, "k_hat", None)
-    reliable = getattr(log_z, "reliable", None)
     return EvidenceOutput(
         log_z=float(log_z.value), log_z_se=float(log_z.standard_error), mean=mean, mean_se=mean_se,
         second_moment=second, second_moment_se=second_se,
         positive=math.nan if positive is None else float(positive), positive_se=math.nan if positive_se is None else float(positive_se),
         evaluations=int(evaluations), wall_time=clock.wall, compile_time=clock.compile,
-        k_hat=math.nan if k_hat is None else float(k_hat), reliable=None if reliable is None else bool(reliable),
+        k_hat=float(log_z.k_hat), reliable=bool(log_z.reliable),
         notes=short_notes(caught),
     )
 
@@ -84,10 +79,7 @@ class LaplaceRestoreRunner(EvidenceRunner):
 
 
 class AutosampleRunner(EvidenceRunner):
-    """`restore.autosample` given the problem's box: Restore's one-call path, every stage counted by itself.
-
-    Skipped, with a note, while the installed `restore` has no `autosample`.
-    """
+    """`restore.autosample` given the problem's box: Restore's one-call path, every stage counted by itself."""
 
     family = "restore"
 
@@ -95,11 +87,6 @@ class AutosampleRunner(EvidenceRunner):
         if lanes < 2 or steps < 2:
             raise ValueError(f"need lanes >= 2 and steps >= 2, got {lanes} and {steps}")
         self.lanes, self.steps, self.name = int(lanes), int(steps), name
-
-    def unavailable(self) -> str | None:
-        import restore
-
-        return None if hasattr(restore, "autosample") else "restore.autosample does not exist in this version of restore"
 
     def run(self, problem, key: PRNGKeyArray) -> EvidenceOutput:
         import restore
