@@ -44,7 +44,7 @@ from ._jump_restore import JumpRestore
 from ._pareto import K_HAT_LIMIT
 from ._progress import console_note
 from ._result import SampleResult
-from ._sample import sample
+from ._sample import _thinning, sample
 from ._seeding import seed_draws
 from ._validation import check_integer, check_logdensity
 from .local import AbstractLocalKernel, RandomWalk
@@ -348,6 +348,15 @@ def autosample(
             return JumpRestore(logdensity, kernel, u, tour_length=tour_length), True
         return JumpRestore(logdensity, kernel, u, log_rate=log_z - math.log(tour_length)), False
 
+    # Stages store as many draws per lane as the final run, and stream the same observables, so
+    # the final run reuses the compiled program of the stage whose regeneration it takes.
+    final_draws = sample_kwargs.get("max_draws", 100_000)
+    _, stored = _thinning(num_steps, num_lanes, final_draws, sample_kwargs.get("thin"))
+    if stored > 0:
+        stage_draws, stage_thin = stored * num_lanes, max(1, stage_steps // stored)
+    else:  # the final run stores no draws; the stages need some to fit to
+        stage_draws, stage_thin = min(100_000, num_lanes * 64), None
+
     best = None  # (k_hat of durations, fit, regeneration, log Z) of the stage with the lightest tail
     log_z = None
     for stage in range(1, max_stages + 1):
@@ -359,7 +368,7 @@ def autosample(
             warnings.simplefilter("ignore")
             result = sample(
                 sampler, jax.random.fold_in(key_stages, stage), num_lanes=num_lanes, num_steps=stage_steps,
-                observables={"x": _identity}, progress=progress, max_draws=min(100_000, num_lanes * 64),
+                observables=observables, progress=progress, max_draws=stage_draws, thin=stage_thin,
             )  # fmt: skip
         pilot = sampler.pilot_size if piloted else 0
         report = _stage_report(stage, "adapt", choice.fit, result, pilot, time.perf_counter() - clock)
@@ -393,6 +402,3 @@ def autosample(
 def _tail(report: StageReport) -> float:
     return report.duration_k_hat if math.isfinite(report.duration_k_hat) else math.inf
 
-
-def _identity(x: Array) -> Array:
-    return x

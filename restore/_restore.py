@@ -165,6 +165,9 @@ class AbstractRestore(eqx.Module):
                 rates = rates.astype(jnp.result_type(float))
             if not jnp.issubdtype(rates.dtype, jnp.floating):
                 raise TypeError(f"log_rate must be a real number (log c_tilde), got dtype {rates.dtype}")
+            # A Python float gives a weakly typed array; a calibrated rate is strongly typed. Make
+            # both strong, so that samplers built either way share one compiled program.
+            rates = rates.astype(rates.dtype)
             if rates.ndim != 1 or rates.shape[0] not in (1, K):
                 raise ValueError(f"log_rate must be a scalar or one value per phase ({K}), got shape {rates.shape}")
             if not isinstance(rates, jax.core.Tracer) and not bool(jnp.all(jnp.isfinite(rates))):

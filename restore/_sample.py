@@ -455,7 +455,7 @@ def sample(
 
     chunk = math.ceil(num_steps / min(num_chunks, num_steps))
     has_tours = bool(getattr(sampler, "has_tours", False))
-    depth = records_per_lane(num_lanes, observe.size, chunk) if has_tours else 0
+    depth = records_per_lane(num_lanes, observe.size) if has_tours else 0
 
     def start_carry(states):
         histogram = init_histogram(dtype)

@@ -15,10 +15,10 @@ from typing import NamedTuple
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-#: Records per lane are capped so that a chunk's buffer holds at most this many numbers.
-MAX_RECORD_ELEMENTS = 2**22
-#: At most this many tours per lane and chunk (the memory cap usually binds first).
-MAX_RECORDS_PER_LANE = 2**16
+#: Records per lane are capped so that the buffers hold at most this many numbers.
+MAX_RECORD_ELEMENTS = 2**20
+#: At most this many tours per lane between two drains (the merge into the top sets sorts them).
+MAX_RECORDS_PER_LANE = 64
 
 
 class TourRecords(NamedTuple):
@@ -43,10 +43,14 @@ class TourRecords(NamedTuple):
         return int(self.duration.shape[1])
 
 
-def records_per_lane(num_lanes: int, size: int, chunk: int) -> int:
-    """The buffer depth `R`: a chunk's worth of tours, within the memory cap."""
+def records_per_lane(num_lanes: int, size: int) -> int:
+    """The buffer depth `R`, within the memory cap.
+
+    It depends on the number of lanes and observables only, not on the run's length, so
+    runs of different lengths share one compiled program.
+    """
     by_memory = MAX_RECORD_ELEMENTS // max(num_lanes * (size + 2), 1)
-    return int(max(4, min(MAX_RECORDS_PER_LANE, chunk, by_memory)))
+    return int(max(4, min(MAX_RECORDS_PER_LANE, by_memory)))
 
 
 def init_records(num_lanes: int, size: int, depth: int, dtype) -> TourRecords:

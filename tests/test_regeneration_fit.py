@@ -119,20 +119,21 @@ def test_weighted_product_fit_recovers_unequal_wells():
 
 def test_choice_follows_the_structure_of_the_draws():
     rng = np.random.default_rng(4)
-    groups = np.repeat(np.arange(40), 200)
+    n = 4000
+    groups = np.repeat(np.arange(40), n // 40)
     # 8 independent bimodal coordinates: 256 modes in product form
-    product = np.where(rng.uniform(size=(8000, 8)) < 0.7, 2.0, -2.0) + 0.4 * rng.standard_normal((8000, 8))
-    chosen = choose_regeneration(product, np.ones(8000), groups)
+    product = np.where(rng.uniform(size=(n, 8)) < 0.7, 2.0, -2.0) + 0.4 * rng.standard_normal((n, 8))
+    chosen = choose_regeneration(product, np.ones(n), groups)
     assert chosen.fit.family == "product", chosen.candidates
     # one strongly correlated Gaussian: a full covariance is worth its cost
     cov = np.array([[1.0, 0.95, 0.0], [0.95, 1.0, 0.0], [0.0, 0.0, 1.0]])
-    correlated = rng.multivariate_normal(np.zeros(3), cov, 8000)
-    chosen = choose_regeneration(correlated, np.ones(8000), groups)
+    correlated = rng.multivariate_normal(np.zeros(3), cov, n)
+    chosen = choose_regeneration(correlated, np.ones(n), groups)
     assert chosen.fit.family.startswith("full"), chosen.candidates
     # 40 separated modes in 2-d: many components
     centres = rng.uniform(-40, 40, (40, 2))
-    spread = centres[rng.integers(0, 40, 8000)] + rng.standard_normal((8000, 2))
-    chosen = choose_regeneration(spread, np.ones(8000), groups)
+    spread = centres[rng.integers(0, 40, n)] + rng.standard_normal((n, 2))
+    chosen = choose_regeneration(spread, np.ones(n), groups)
     assert chosen.fit.num_components >= 32, chosen.candidates
     best = max(c.score for c in chosen.candidates)
     assert all(c.score <= best for c in chosen.candidates)

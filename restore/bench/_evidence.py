@@ -28,7 +28,8 @@ class EvidenceConfig:
     `smc_mcmc_steps` HMC moves per temperature; dynesty with `nested_live` live points,
     stopped after `nested_seconds` of sampling at the latest; Restore's README recipe and
     `restore.autosample` with `restore_lanes` lanes of `restore_steps` steps (the recipe
-    finds modes from `restore_starts` uniform starts in the box). `samplers`, when given,
+    finds modes from `restore_starts` uniform starts in the box; `autosample` runs at most
+    `restore_stages` adaptive stages). `samplers`, when given,
     keeps the methods whose names start with one of its entries.
     """
 
@@ -42,6 +43,7 @@ class EvidenceConfig:
     restore_lanes: int = 1024
     restore_steps: int = 1000
     restore_starts: int = 256
+    restore_stages: int = 6
     samplers: tuple[str, ...] | None = None
     reference_draws: int = 65536
     base_seed: int = 0
@@ -72,14 +74,14 @@ class EvidenceConfig:
         """Seconds of sampling, for the smoke test: one seed, tiny budgets, the 2-d mixture and the funnel."""
         return cls(
             "tiny", problems=("gmm40", "funnel10"), seeds=1, smc_particles=64, smc_mcmc_steps=2, nested_live=25,
-            nested_seconds=2.0, restore_lanes=32, restore_steps=60, restore_starts=32, reference_draws=4096,
+            nested_seconds=2.0, restore_lanes=32, restore_steps=60, restore_starts=32, restore_stages=1, reference_draws=4096,
         )
 
     def runners(self) -> list[EvidenceRunner]:
         """The methods of this configuration: Restore (recipe, autosample), tempered SMC, dynesty."""
         out: list[EvidenceRunner] = [
             LaplaceRestoreRunner(self.restore_lanes, self.restore_steps, self.restore_starts),
-            AutosampleRunner(self.restore_lanes, self.restore_steps),
+            AutosampleRunner(self.restore_lanes, self.restore_steps, self.restore_stages),
             TemperedSMCRunner(self.smc_particles, self.smc_mcmc_steps),
             DynestyRunner(self.nested_live, self.nested_seconds),
         ]

@@ -83,10 +83,10 @@ class AutosampleRunner(EvidenceRunner):
 
     family = "restore"
 
-    def __init__(self, lanes: int = 1024, steps: int = 1000, name: str = "restore-autosample"):
-        if lanes < 2 or steps < 2:
-            raise ValueError(f"need lanes >= 2 and steps >= 2, got {lanes} and {steps}")
-        self.lanes, self.steps, self.name = int(lanes), int(steps), name
+    def __init__(self, lanes: int = 1024, steps: int = 1000, max_stages: int = 6, name: str = "restore-autosample"):
+        if lanes < 4 or steps < 2 or max_stages < 1:
+            raise ValueError(f"need lanes >= 4, steps >= 2 and max_stages >= 1, got {lanes}, {steps} and {max_stages}")
+        self.lanes, self.steps, self.max_stages, self.name = int(lanes), int(steps), int(max_stages), name
 
     def run(self, problem, key: PRNGKeyArray) -> EvidenceOutput:
         import restore
@@ -96,6 +96,6 @@ class AutosampleRunner(EvidenceRunner):
             warnings.simplefilter("always")
             result = restore.autosample(
                 problem.logdensity, key, box=(lower, upper), num_lanes=self.lanes, num_steps=self.steps,
-                observables=problem.observables, progress=False,
+                observables=problem.observables, max_stages=self.max_stages, progress=False,
             )
         return read_result(result, problem, int(result.evaluations), clock, caught)
