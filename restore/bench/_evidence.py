@@ -171,7 +171,7 @@ def run_evidence(
 
     Every method runs on every problem and seed. A method that raises (Restore's Laplace
     recipe on the funnel, which has no mode) gives a `failed` row with the error message;
-    one that cannot run here (`restore.autosample` before it exists, a missing package)
+    one that cannot run here (a missing package)
     gives a `skipped` row. Ctrl-C stops the run: the finished runs are kept, written, and
     the result says `interrupted=True`. `log`, if given, is called with one line per run.
     """

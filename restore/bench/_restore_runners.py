@@ -37,6 +37,8 @@ def short_notes(caught) -> str:
         text = str(w.message)
         if "heavy-tailed" in text:
             text = "heavy-tailed tours"
+        elif "cannot be trusted" in text:
+            text = "unreliable error bars (k_hat)"
         elif "open tour" in text:
             text = "unfinished tours"
         elif "NaN or +inf" in text:
