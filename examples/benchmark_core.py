@@ -48,7 +48,7 @@ def main() -> None:
     starts = 6.0 * jax.random.normal(jax.random.key(0), (64, args.dim))
     nu = laplace_mixture(target.logdensity, starts, tails="student_t", df=5.0, weights="equal")
     local = RandomWalk(2.38 / np.sqrt(args.dim))
-    jr = restore.JumpRestore(target.logdensity, local, nu, tour_length=args.tour_length).calibrate(jax.random.key(99))
+    jr = restore.JumpRestore(target.logdensity, local, nu, tour_length=args.tour_length).calibrate(jax.random.key(99))[0]
     mh = restore.MixtureMH(target.logdensity, local, nu, large_step_probability=1.0 / args.tour_length)
     print(f"machine: {platform.processor() or platform.machine()}, {jax.device_count()} {jax.default_backend()} device(s), jax {jax.__version__}")
     print(f"target: {args.dim}-d mixture of 3 Gaussians, weights {np.round(np.asarray(target.weights), 4).tolist()}")

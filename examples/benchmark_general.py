@@ -89,7 +89,7 @@ def main() -> None:
     target = well_separated_gaussian_mixture(10, 3, separation=8.0)
     starts = 6.0 * jax.random.normal(jax.random.key(0), (64, 10))
     nu = laplace_mixture(target.logdensity, starts, tails="student_t", df=5.0, weights="equal")
-    jr = restore.JumpRestore(target.logdensity, RandomWalk(2.38 / np.sqrt(10)), nu, tour_length=10.0).calibrate(jax.random.key(99))
+    jr = restore.JumpRestore(target.logdensity, RandomWalk(2.38 / np.sqrt(10)), nu, tour_length=10.0).calibrate(jax.random.key(99))[0]
     x0 = target.sample(jax.random.key(1), 512)
     raw = raw_rate(target.logdensity, x0, 1500, repeats=3)
     ours = sampler_rate(jr, 512, 1500, repeats=3)

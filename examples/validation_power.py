@@ -84,7 +84,7 @@ class ScaledReference(AbstractRegeneration):
 
 
 def samplers() -> dict[str, restore.JumpRestore]:
-    log_rate = restore.JumpRestore(TARGET.logdensity, RandomWalk(1.0), NU, tour_length=2.0).calibrate(jax.random.key(0)).log_rate
+    log_rate = restore.JumpRestore(TARGET.logdensity, RandomWalk(1.0), NU, tour_length=2.0).calibrate(jax.random.key(0))[0].log_rate
     make = lambda local, nu=NU: restore.JumpRestore(TARGET.logdensity, local, nu, log_rate=log_rate)  # noqa: E731
     return {
         "correct random walk": make(RandomWalk(1.0)),

@@ -25,21 +25,21 @@ from ._diagnostics import TourStatistics as TourStatistics
 from ._estimates import Estimate as Estimate
 from ._estimates import UnreliableEstimateWarning as UnreliableEstimateWarning
 from ._jump_restore import JumpRestore as JumpRestore
-from ._jump_restore import JumpRestoreInfo as JumpRestoreInfo
 from ._jump_restore import JumpRestoreState as JumpRestoreState
 from ._merge import merge_results as merge_results
 from ._mixture_mh import MixtureMH as MixtureMH
-from ._mixture_mh import MixtureMHInfo as MixtureMHInfo
 from ._mixture_mh import MixtureMHState as MixtureMHState
 from ._pareto import K_HAT_LIMIT as K_HAT_LIMIT
 from ._point import Point as Point
 from ._rate import PilotEstimate as PilotEstimate
 from ._restore import AbstractRestore as AbstractRestore
 from ._restore import Restore as Restore
-from ._restore import RestoreInfo as RestoreInfo
 from ._restore import RestoreState as RestoreState
 from ._result import LogEstimate as LogEstimate
 from ._result import SampleResult as SampleResult
 from ._sample import sample as sample
+from ._sampler import AbstractSampler as AbstractSampler
+from ._sampler import RunFacts as RunFacts
+from ._sampler import StepInfo as StepInfo
 
 __version__ = "0.1.0"

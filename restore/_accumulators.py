@@ -8,6 +8,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
+from ._sampler import StepInfo
+
 #: Tour durations are binned on a log10 scale over this range for the tail diagnostics.
 HISTOGRAM_RANGE = (-6.0, 6.0)
 HISTOGRAM_BINS = 96
@@ -49,12 +51,14 @@ class LaneSums(NamedTuple):
 
 
 def init_lane_sums(num_lanes: int, size: int, dtype, skip_first: Array) -> LaneSums:
-    """Zero sums; `skip_first` marks lanes that did not start at a regeneration."""
-    z = jnp.zeros((num_lanes,), dtype)
-    zm = jnp.zeros((num_lanes, size), dtype)
-    zi = jnp.zeros((num_lanes,), jnp.int32)
-    ninf = jnp.full((num_lanes,), -jnp.inf, dtype)
-    return LaneSums(zm, z, zm, zm, zm, z, z, zi, zi, z, zm, zm, z, skip_first, ninf, ninf, zi, zi, zi, zi, zi, zi, zi, z)
+    """Zero sums (`-inf` for log sums); `skip_first` marks lanes that did not start at a regeneration."""
+
+    def start(name: str) -> Array:
+        kind, per_observable, integer = _FIELDS[name]
+        shape = (num_lanes, size) if per_observable else (num_lanes,)
+        return jnp.full(shape, -jnp.inf if kind == "log_sum" else 0, jnp.int32 if integer else dtype)
+
+    return LaneSums(**{name: start(name) for name in LaneSums._fields if name != "skip_first"}, skip_first=skip_first)
 
 
 def open_tour_totals(sums: LaneSums, values: Array, weight: Array) -> tuple[Array, Array]:
@@ -64,7 +68,7 @@ def open_tour_totals(sums: LaneSums, values: Array, weight: Array) -> tuple[Arra
     return sums.open_f + jnp.where(w > 0, w * values, 0.0), sums.open_t + weight
 
 
-def update_lane_sums(sums: LaneSums, values: Array, weight: Array, info) -> LaneSums:
+def update_lane_sums(sums: LaneSums, values: Array, weight: Array, info: StepInfo) -> LaneSums:
     """Add one step of every lane: `values` `(L, m)` at the held states, weights `(L,)`."""
     w = weight[:, None]
     wf = jnp.where(w > 0, w * values, 0.0)
@@ -73,13 +77,8 @@ def update_lane_sums(sums: LaneSums, values: Array, weight: Array, info) -> Lane
     end = info.regenerated
     count = end & ~sums.skip_first
     c = count[:, None]
-    log_iw = getattr(info, "log_importance_weight", None)
-    if log_iw is None:
-        log_iw = jnp.full_like(weight, -jnp.inf)
+    log_iw, drawn, bound_ratio = info.log_importance_weight, info.start_drawn, info.bound_ratio
     zero = jnp.zeros((), jnp.int32)
-    drawn = getattr(info, "start_drawn", end)
-    never = jnp.zeros_like(end)
-    bound_ratio = getattr(info, "bound_ratio", jnp.zeros_like(weight))
     return LaneSums(
         open_f=jnp.where(end[:, None], 0.0, open_f),
         open_t=jnp.where(end, 0.0, open_t),
@@ -99,10 +98,10 @@ def update_lane_sums(sums: LaneSums, values: Array, weight: Array, info) -> Lane
         log_iw_sum2=jnp.logaddexp(sums.log_iw_sum2, 2.0 * log_iw),
         num_iw=sums.num_iw + drawn.astype(jnp.int32),
         num_invalid=sums.num_invalid + info.invalid.astype(jnp.int32),
-        num_uncovered=sums.num_uncovered + getattr(info, "uncovered", jnp.zeros_like(end)).astype(jnp.int32),
+        num_uncovered=sums.num_uncovered + info.uncovered.astype(jnp.int32),
         num_accepted=sums.num_accepted + info.accepted.astype(jnp.int32),
         num_regenerations=sums.num_regenerations + jnp.where(end, 1, zero),
-        num_negative_rate=sums.num_negative_rate + getattr(info, "negative_rate", never).astype(jnp.int32),
+        num_negative_rate=sums.num_negative_rate + info.negative_rate.astype(jnp.int32),
         num_bound_exceeded=sums.num_bound_exceeded + (bound_ratio > 1).astype(jnp.int32),
         max_bound_ratio=jnp.maximum(sums.max_bound_ratio, bound_ratio),
     )
@@ -129,17 +128,30 @@ def init_histogram(dtype) -> tuple[Array, Array]:
     return jnp.zeros((HISTOGRAM_BINS,), dtype), jnp.zeros((HISTOGRAM_BINS,), dtype)
 
 
-# Sums that grow with the run are drained to float64 / int64 host totals after every chunk
-# and restarted on the device, so float32 runs keep full precision over any number of
-# steps (a float32 sum of 10^6 terms can be off by percents) and int32 counts never
-# overflow. The open tour's partial sums, the step counter of the open tour and the
-# `skip_first` flags stay on the device: they are state, not totals.
-_ADDITIVE = (
-    "sum_f", "sum_f2", "sum_ft", "sum_t", "sum_t2", "num_tours", "all_f", "all_f2", "all_t", "num_iw",
-    "num_invalid", "num_uncovered", "num_accepted", "num_regenerations", "num_negative_rate", "num_bound_exceeded",
-)  # fmt: skip
-_LOG_ADDITIVE = ("log_iw_sum", "log_iw_sum2")
-_MAXIMA = ("max_tour", "max_bound_ratio")
+# How each field of `LaneSums` is reduced, in one table: `(kind, per observable, integer)`.
+# Sums that grow with the run ("sum", "log_sum" combined with logaddexp, "max") are drained
+# to float64 / int64 host totals after every chunk and restarted on the device, so float32
+# runs keep full precision over any number of steps (a float32 sum of 10^6 terms can be
+# off by percents) and int32 counts never overflow. "state" fields (the open tour's
+# partial sums, its step counter, `skip_first`) stay on the device and are taken from the
+# latest chunk.
+_FIELDS: dict[str, tuple[str, bool, bool]] = {
+    "open_f": ("state", True, False), "open_t": ("state", False, False),
+    "sum_f": ("sum", True, False), "sum_f2": ("sum", True, False), "sum_ft": ("sum", True, False),
+    "sum_t": ("sum", False, False), "sum_t2": ("sum", False, False), "num_tours": ("sum", False, True),
+    "open_steps": ("state", False, True), "max_tour": ("max", False, False),
+    "all_f": ("sum", True, False), "all_f2": ("sum", True, False), "all_t": ("sum", False, False),
+    "skip_first": ("state", False, False),
+    "log_iw_sum": ("log_sum", False, False), "log_iw_sum2": ("log_sum", False, False), "num_iw": ("sum", False, True),
+    "num_invalid": ("sum", False, True), "num_uncovered": ("sum", False, True), "num_accepted": ("sum", False, True),
+    "num_regenerations": ("sum", False, True), "num_negative_rate": ("sum", False, True),
+    "num_bound_exceeded": ("sum", False, True), "max_bound_ratio": ("max", False, False),
+}  # fmt: skip
+if tuple(_FIELDS) != LaneSums._fields:  # pragma: no cover - a new field without a reduction is a bug
+    raise AssertionError("every LaneSums field needs its reduction in _FIELDS, in order")
+_ADDITIVE = tuple(name for name, (kind, *_) in _FIELDS.items() if kind == "sum")
+_LOG_ADDITIVE = tuple(name for name, (kind, *_) in _FIELDS.items() if kind == "log_sum")
+_MAXIMA = tuple(name for name, (kind, *_) in _FIELDS.items() if kind == "max")
 
 
 def restart_sums(sums: LaneSums) -> LaneSums:

@@ -6,8 +6,7 @@ from collections.abc import Callable
 
 from jaxtyping import Array
 
-from ._rate import PilotEstimate
-from ._restore import AbstractRestore, RestoreInfo, RestoreState
+from ._restore import AbstractRestore, RestoreState
 from ._validation import check_parts
 from .dynamics import Jump
 from .local import AbstractLocalKernel
@@ -16,8 +15,6 @@ from .transfer import Independent
 
 JumpRestoreState = RestoreState
 """The state of a jump-Restore lane (the general `RestoreState`)."""
-JumpRestoreInfo = RestoreInfo
-"""What one jump-Restore step did (the general `RestoreInfo`)."""
 
 
 class JumpRestore(AbstractRestore):
@@ -33,9 +30,10 @@ class JumpRestore(AbstractRestore):
 
     Give exactly one of `log_rate` (`log c_tilde`, the raw constant) or `tour_length`
     (the mean tour duration `T = 1/c`, in units of local-move time). A tour length is
-    turned into `log c_tilde = log Z_hat - log T` by `calibrate` with an importance
-    sampling pilot estimate of the normalising constant `Z`; `restore.sample` does it
-    for you and reports the pilot.
+    turned into `log c_tilde = log Z_hat - log T` by `calibrate(key)` with an importance
+    sampling pilot estimate of the normalising constant `Z`; `calibrate` returns the
+    calibrated sampler and the pilot. `restore.sample` does it for you and keeps the pilot
+    in its result.
 
     The run's floating dtype is that of the regeneration distribution's draws
     (`sampler.dtype`): starting positions, proposals and the log density's values are cast
@@ -65,7 +63,6 @@ class JumpRestore(AbstractRestore):
         tour_length: float | None = None,
         local_rate: float = 1.0,
         pilot_size: int = 4096,
-        pilot: PilotEstimate | None = None,
     ):
         check_parts(logdensity, local, regeneration)
         if log_rate is not None and getattr(log_rate, "ndim", 0) != 0:
@@ -75,7 +72,7 @@ class JumpRestore(AbstractRestore):
         if local_rate is None:
             raise TypeError("local_rate must be a positive number (the rate r of local moves), got None")
         dynamics = Jump(local, check_positive(local_rate, "local_rate"))
-        self._setup(logdensity, dynamics, Independent(regeneration), log_rate, tour_length, None, None, pilot_size, pilot)
+        self._setup(logdensity, dynamics, Independent(regeneration), log_rate, tour_length, None, None, pilot_size)
 
     @property
     def local(self) -> AbstractLocalKernel:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 
 import jax
@@ -49,11 +50,11 @@ def merge_results(results: Sequence[SampleResult]) -> SampleResult:
                 "the thinning followed each part's draws budget; pass the same thin= to every part"
             )
     concat = lambda *parts: np.concatenate(parts, axis=0)  # noqa: E731
-    sums = LaneSums(*(concat(*(np.asarray(getattr(r.sums, f)) for r in results)) for f in LaneSums._fields))
+    sums = LaneSums(**{f: concat(*(np.asarray(getattr(r.sums, f)) for r in results)) for f in LaneSums._fields})
     final_state = jax.tree.map(concat, *(r.final_state for r in results))
     tails = None if first.tails is None else TourTails(*(concat(*parts) for parts in zip(*(r.tails for r in results))))
-    merged = SampleResult(**{**first.__dict__})
-    merged.__dict__.update(
+    return dataclasses.replace(
+        first,
         sums=sums,
         tails=tails,
         histogram=tuple(sum(np.asarray(r.histogram[k]) for r in results) for k in range(2)),
@@ -67,4 +68,3 @@ def merge_results(results: Sequence[SampleResult]) -> SampleResult:
         wall_time=max(r.wall_time for r in results),
         interrupted=any(r.interrupted for r in results),
     )
-    return merged

@@ -5,12 +5,12 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import ClassVar, NamedTuple
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float, PRNGKeyArray
+from jaxtyping import Array, Float, PRNGKeyArray
 
 from ._point import Point, evaluate
+from ._sampler import AbstractSampler, StepInfo
 from ._validation import check_parts, check_position
 from .local import AbstractLocalKernel
 from .local._base import metropolis_accept
@@ -26,19 +26,7 @@ class MixtureMHState(NamedTuple):
     log_regeneration_density: Float[Array, ""]
 
 
-class MixtureMHInfo(NamedTuple):
-    """What one MH step did. Holding times are 1: this is a discrete-time chain."""
-
-    holding_time: Float[Array, ""]
-    expected_holding_time: Float[Array, ""]
-    regenerated: Bool[Array, ""]
-    accepted: Bool[Array, ""]
-    acceptance_probability: Float[Array, ""]
-    invalid: Bool[Array, ""]
-    large_step: Bool[Array, ""]
-
-
-class MixtureMH(eqx.Module):
+class MixtureMH(AbstractSampler):
     """Metropolis-Hastings with a mixture of local moves and independent large steps.
 
     With probability `large_step_probability` the step proposes a fresh draw `y ~ nu`
@@ -60,7 +48,7 @@ class MixtureMH(eqx.Module):
     regeneration: AbstractRegeneration
     large_step_probability: Float[Array, ""]
 
-    is_regenerative: ClassVar[bool] = False
+    has_tours: ClassVar[bool] = False
 
     def __init__(self, logdensity, local, regeneration, large_step_probability: float = 0.1):
         message = f"large_step_probability must be a number in [0, 1], got {large_step_probability!r}"
@@ -99,7 +87,7 @@ class MixtureMH(eqx.Module):
         log_u = self.regeneration.log_prob(position).astype(position.dtype)
         return MixtureMHState(point.position, point.logdensity, point.grad, log_u)
 
-    def step(self, key: PRNGKeyArray, state: MixtureMHState) -> tuple[MixtureMHState, MixtureMHInfo]:
+    def step(self, key: PRNGKeyArray, state: MixtureMHState) -> tuple[MixtureMHState, StepInfo]:
         """One MH step: a large step with probability `q`, else a local move."""
         k_choice, k_propose, k_accept, k_regen = jax.random.split(key, 4)
         dtype = state.logdensity.dtype
@@ -119,16 +107,21 @@ class MixtureMH(eqx.Module):
         new_point = jax.tree.map(lambda a, b: jnp.where(large, a, b), global_point, local_point)
         accepted = jnp.where(large, global_info.accepted, local_info.accepted)
         new_log_u = jnp.where(accepted, log_u_new, state.log_regeneration_density)
-        one = jnp.ones((), dtype)
-        info = MixtureMHInfo(
+        one, no = jnp.ones((), dtype), jnp.zeros((), bool)
+        info = StepInfo(
+            position=state.position,
             holding_time=one,
             expected_holding_time=one,
-            regenerated=jnp.zeros((), bool),
+            regenerated=no,
             accepted=accepted,
             acceptance_probability=jnp.where(
                 large, global_info.acceptance_probability, local_info.acceptance_probability
             ).astype(dtype),
             invalid=invalid,
-            large_step=large,
+            uncovered=no,
+            log_importance_weight=jnp.full((), -jnp.inf, dtype),
+            start_drawn=no,
+            negative_rate=no,
+            bound_ratio=jnp.zeros((), dtype),
         )
         return MixtureMHState(new_point.position, new_point.logdensity, new_point.grad, new_log_u), info

@@ -8,7 +8,6 @@ own dynamics, transfer kernel and constant.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Callable, Sequence
 from typing import ClassVar, NamedTuple
@@ -29,6 +28,7 @@ from ._rate import (
     log_total_rate,
     pilot_log_z,
 )
+from ._sampler import AbstractSampler, RunFacts, StepInfo
 from ._validation import check_integer, check_logdensity, check_position
 from .dynamics import AbstractDiffusion, AbstractDynamics, AbstractJumpDynamics
 from .transfer import AbstractTransfer
@@ -60,43 +60,6 @@ class RestoreState(NamedTuple):
     pending: Bool[Array, ""]
 
 
-class RestoreInfo(NamedTuple):
-    """What one step did.
-
-    Attributes:
-        position: the state the weights below refer to (jump dynamics: the state held
-            before the step; diffusions: the state at the candidate event).
-        holding_time: time elapsed in this step (a sampled exponential).
-        expected_holding_time: the Rao-Blackwellised weight: `1 / (r + gamma(x))` for
-            jump dynamics, `1 / Gamma` for thinning (each candidate event stands for
-            `1/Gamma` time units of the path).
-        regenerated: the tour ended at this step.
-        accepted: a local move was made (and accepted, for Metropolis kernels).
-        acceptance_probability: of the local move.
-        invalid: the new evaluation returned NaN or `+inf` (treated as zero density).
-        uncovered: the new state has positive target density but zero reference density.
-        log_importance_weight: `log p(y) - log q(y)` at a freshly drawn tour start `y`.
-        start_drawn: this step drew the start of a tour.
-        negative_rate: the kill rate was negative at the state tested: `c_tilde` is too
-            small for these dynamics (`restore.minimal_log_rate` searches for a safe one).
-        bound_ratio: `gamma / Gamma` at a thinning candidate (zero for jump dynamics);
-            above 1 the bound was violated.
-    """
-
-    position: Float[Array, " d"]
-    holding_time: Float[Array, ""]
-    expected_holding_time: Float[Array, ""]
-    regenerated: Bool[Array, ""]
-    accepted: Bool[Array, ""]
-    acceptance_probability: Float[Array, ""]
-    invalid: Bool[Array, ""]
-    uncovered: Bool[Array, ""]
-    log_importance_weight: Float[Array, ""]
-    start_drawn: Bool[Array, ""]
-    negative_rate: Bool[Array, ""]
-    bound_ratio: Float[Array, ""]
-
-
 def _as_phases(value, name: str) -> tuple:
     return tuple(value) if isinstance(value, (list, tuple)) else (value,)
 
@@ -106,23 +69,26 @@ def cycle(tour: Array, num_phases: int) -> Array:
     return jnp.mod(tour, num_phases)
 
 
-class AbstractRestore(eqx.Module):
-    """Shared machinery of `Restore` and `JumpRestore`: init, step, calibration."""
+class AbstractRestore(AbstractSampler):
+    """Shared machinery of `Restore` and `JumpRestore`: init, step, calibration.
+
+    `tour_length` is kept as an array (not a static field), so that samplers that differ
+    only in their tour length share one compiled program once calibrated.
+    """
 
     logdensity: Callable[[Array], Array]
     dynamics: tuple[AbstractDynamics, ...]
     transfers: tuple[AbstractTransfer, ...]
     log_rate: Float[Array, "*K"] | None
-    tour_length: tuple[float, ...] | None = eqx.field(static=True)
+    tour_length: Float[Array, " K"] | None
     bound: tuple[float | None, ...] = eqx.field(static=True)
     phase_rule: Callable[[Array], Array] | None = eqx.field(static=True)
     pilot_size: int = eqx.field(static=True)
-    pilot: PilotEstimate | None = eqx.field(static=True)
 
     has_tours: ClassVar[bool] = True
 
     # ------------------------------------------------------------------ construction
-    def _setup(self, logdensity, dynamics, transfers, log_rate, tour_length, bound, phase_rule, pilot_size, pilot):
+    def _setup(self, logdensity, dynamics, transfers, log_rate, tour_length, bound, phase_rule, pilot_size):
         dynamics, transfers = _as_phases(dynamics, "dynamics"), _as_phases(transfers, "transfer")
         K = max(len(dynamics), len(transfers))
         for name, parts in (("dynamics", dynamics), ("transfer", transfers)):
@@ -177,7 +143,8 @@ class AbstractRestore(eqx.Module):
             lengths = _as_phases(tour_length, "tour_length")
             if len(lengths) not in (1, K):
                 raise ValueError(f"tour_length must be a scalar or one value per phase ({K})")
-            tour_length = tuple(check_positive(v, "tour_length") for v in (lengths * K if len(lengths) == 1 else lengths))
+            lengths = tuple(check_positive(v, "tour_length") for v in (lengths * K if len(lengths) == 1 else lengths))
+            tour_length = jnp.asarray(lengths, jnp.result_type(float))
         bounds = _as_phases(bound, "bound")
         if len(bounds) not in (1, K):
             raise ValueError(f"bound must be a scalar or one value per phase ({K})")
@@ -200,7 +167,6 @@ class AbstractRestore(eqx.Module):
         self.bound = bounds
         self.phase_rule = phase_rule
         self.pilot_size = int(pilot_size)
-        self.pilot = pilot
 
     # ------------------------------------------------------------------ facts
     @property
@@ -272,32 +238,36 @@ class AbstractRestore(eqx.Module):
     def uses_gradient(self) -> bool:
         return any(d.uses_gradient for d in self.dynamics)
 
-    def _replace(self, **changes):
-        """A copy with some fields changed (static ones included), without re-running checks."""
-        new = object.__new__(type(self))
-        for field in dataclasses.fields(self):
-            object.__setattr__(new, field.name, changes.get(field.name, getattr(self, field.name)))
-        return new
+    @property
+    def needs_calibration(self) -> bool:
+        """Built with a `tour_length` and not calibrated yet: `calibrate` sets the rate."""
+        return self.log_rate is None
 
-    def calibrate(self, key: PRNGKeyArray):
-        """Return a copy with `log_rate` set from `tour_length` by a pilot estimate of `Z`.
+    def calibrate(self, key: PRNGKeyArray) -> tuple[AbstractRestore, PilotEstimate | None]:
+        """The sampler with `log_rate` set from `tour_length` by a pilot estimate of `Z`, and the pilot.
 
         The pilot is importance sampling from the first phase's reference distribution;
         phase `k` then gets `log c_tilde_k = log Z_hat - log T_k`. A sampler that already
-        has a `log_rate` is returned unchanged.
+        has a `log_rate` is returned unchanged, with no pilot. `restore.sample` calls this
+        for you and keeps the pilot in its result (`SampleResult.pilot`).
         """
         if self.log_rate is not None:
-            return self
+            return self, None
         pilot = pilot_log_z(key, self.logdensity, self.transfers[0].reference, self.pilot_size)
-        rates = jnp.asarray([pilot.log_z - math.log(t) for t in self.tour_length])
+        lengths = np.asarray(self.tour_length, np.float64)
+        rates = jnp.asarray(pilot.log_z - np.log(lengths), self.tour_length.dtype)
         rates = rates[0] if self.num_phases == 1 else rates
-        return self._replace(log_rate=rates, tour_length=None, pilot=pilot)
+        return eqx.tree_at(lambda s: s.log_rate, self, rates, is_leaf=lambda x: x is None), pilot
+
+    def run_facts(self) -> RunFacts:
+        lengths = None if self.tour_length is None else tuple(float(t) for t in np.asarray(self.tour_length))
+        return RunFacts(self.effective_log_rate, lengths)
 
     def _require_rate(self) -> Array:
         if self.log_rate is None:
             raise ValueError(
                 "this sampler has a tour_length but no log_rate yet: call sampler.calibrate(key) "
-                "first (restore.sample does it for you)"
+                "first, which returns the calibrated sampler and its pilot (restore.sample does it for you)"
             )
         return self.log_rate
 
@@ -350,7 +320,7 @@ class AbstractRestore(eqx.Module):
         zero = jnp.zeros((), jnp.int32)
         return RestoreState(point.position, point.logdensity, point.grad, log_kill, adjoint, phase, zero, jnp.zeros((), bool))
 
-    def step(self, key: PRNGKeyArray, state: RestoreState) -> tuple[RestoreState, RestoreInfo]:
+    def step(self, key: PRNGKeyArray, state: RestoreState) -> tuple[RestoreState, StepInfo]:
         """One event of the lane: a local move or a kill (jump dynamics), or one thinning candidate (diffusions)."""
         log_rates = self._require_rate()
         fn = self._diffusion_step if self.is_diffusion else self._jump_step
@@ -394,7 +364,7 @@ class AbstractRestore(eqx.Module):
             state.pending,
         )
         log_weight = jnp.where(killed, new_point.logdensity - log_q, -jnp.inf)
-        info = RestoreInfo(
+        info = StepInfo(
             position=state.position,
             holding_time=hold,
             expected_holding_time=mean_hold,
@@ -438,7 +408,7 @@ class AbstractRestore(eqx.Module):
         )
         log_weight = jnp.where(pending, evaluated.logdensity - log_q, -jnp.inf)
         zero = jnp.zeros((), dtype)
-        info = RestoreInfo(
+        info = StepInfo(
             position=evaluated.position,
             holding_time=jnp.where(pending, zero, gap),
             expected_holding_time=jnp.where(pending, zero, 1.0 / bound),
@@ -525,11 +495,10 @@ class Restore(AbstractRestore):
         bound=None,
         phase_rule: Callable[[Array], Array] | None = None,
         pilot_size: int = 4096,
-        pilot: PilotEstimate | None = None,
     ):
         from .regeneration import AbstractRegeneration
         from .transfer import Independent
 
         wrap = lambda t: Independent(t) if isinstance(t, AbstractRegeneration) else t
         transfer = tuple(wrap(t) for t in transfer) if isinstance(transfer, (list, tuple)) else wrap(transfer)
-        self._setup(logdensity, dynamics, transfer, log_rate, tour_length, bound, phase_rule, pilot_size, pilot)
+        self._setup(logdensity, dynamics, transfer, log_rate, tour_length, bound, phase_rule, pilot_size)

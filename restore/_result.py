@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import warnings
 from collections.abc import Callable
@@ -22,6 +23,7 @@ from ._estimates import (
 )
 from ._observables import Observables
 from ._pareto import k_hat_limit
+from ._sampler import AbstractSampler
 from ._tails import TourTails, duration_k, importance_k, residual_k, select_lanes
 
 Method = Literal["tours", "lanes"]
@@ -31,24 +33,72 @@ class LogEstimate(Estimate):
     """An estimate of a logarithm, e.g. `log Z`; `standard_error` is that of the log."""
 
 
+@dataclasses.dataclass(eq=False)
 class SampleResult:
     """What `restore.sample` returns: streamed sums, thinned draws and run facts.
 
     Everything is held in numpy on the host. The main entry points are `estimate`,
     `normalising_constant`, `tour_statistics`, `ess`, `estimate_draws` and `to_arviz`.
+
+    Attributes:
+        sampler_name: the class name of the sampler that ran.
+        is_regenerative: tours start independently of the past (tour-based errors hold).
+        has_tours: the sampler has tours at all.
+        observables: what was streamed, with names and shapes.
+        sums: per-lane float64 totals (`LaneSums`, a leading lane axis).
+        histogram: `(counts, total time)` of complete tour durations in log10 bins.
+        tails: per-lane largest tour terms, for the Pareto `k_hat` (`None` without tours).
+        draws: thinned states `(stored, lanes, d)`; `draw_weights` their weights.
+        draw_weights: `(stored, lanes)`.
+        final_state: every lane's last state.
+        num_lanes: lanes run.
+        num_steps: steps per lane within the budget; `finishing_steps` after it.
+        finishing_steps: steps spent finishing the tours open at the end of the budget.
+        unfinished_tours: lanes whose tour was still open after finishing.
+        thin: every `thin`-th step was stored.
+        weights: `"rao_blackwell"` or `"time"`.
+        wall_time: seconds the run took.
+        interrupted: the run was stopped early (Ctrl-C); the result covers what ran.
+        draws_note: why the draws were thinned, if they were.
+        log_rate: `log c` with the mean tour duration `Z / c` (`None` without tours).
+        tour_length: the mean tour duration the rate was calibrated for, if it was.
+        pilot: the pilot estimate of `Z` that calibrated the rate (`PilotEstimate`), if one did.
+        expected_tour_times: per lane, the complete tours' expected total duration over
+            `Z` with several phases (`None` with one).
     """
 
-    def __init__(self, **fields: Any):
-        self.__dict__.update(fields)
+    sampler_name: str
+    is_regenerative: bool
+    has_tours: bool
+    observables: Observables
+    sums: Any
+    histogram: tuple
+    tails: TourTails | None
+    draws: np.ndarray
+    draw_weights: np.ndarray
+    final_state: Any
+    num_lanes: int
+    num_steps: int
+    finishing_steps: int
+    unfinished_tours: int
+    thin: int
+    weights: str
+    wall_time: float
+    interrupted: bool
+    draws_note: str | None
+    log_rate: float | None
+    tour_length: tuple[float, ...] | None
+    pilot: Any
+    expected_tour_times: np.ndarray | None
 
     @classmethod
-    def from_run(cls, *, sampler, observables: Observables, sums, histogram, tails, draws, draw_weights, final_state, num_steps, finishing_steps, thin, weights, wall_time, interrupted, draws_note=None, unfinished_tours=0) -> SampleResult:
+    def from_run(cls, *, sampler: AbstractSampler, pilot, observables: Observables, sums, histogram, tails, draws, draw_weights, final_state, num_steps, finishing_steps, thin, weights, wall_time, interrupted, draws_note=None, unfinished_tours=0) -> SampleResult:
         to_np = lambda tree: jax.tree.map(np.asarray, tree)
-        log_rate = getattr(sampler, "effective_log_rate", getattr(sampler, "log_rate", None))
+        facts = sampler.run_facts()
         result = cls(
             sampler_name=type(sampler).__name__,
-            is_regenerative=bool(getattr(sampler, "is_regenerative", False)),
-            has_tours=bool(getattr(sampler, "has_tours", False)),
+            is_regenerative=bool(sampler.is_regenerative),
+            has_tours=bool(sampler.has_tours),
             observables=observables,
             sums=to_np(sums),
             histogram=to_np(histogram),
@@ -65,10 +115,10 @@ class SampleResult:
             wall_time=float(wall_time),
             interrupted=bool(interrupted),
             draws_note=draws_note,
-            log_rate=None if log_rate is None else float(log_rate),
-            tour_length=getattr(sampler, "tour_length", None),
-            pilot=getattr(sampler, "pilot", None),
-            expected_tour_times=_expected_tour_times(sampler, final_state, sums),
+            log_rate=None if facts.log_rate is None else float(facts.log_rate),
+            tour_length=facts.tour_length,
+            pilot=pilot,
+            expected_tour_times=sampler.expected_tour_times(final_state.tour, sums.num_tours) if sampler.has_tours else None,
         )
         result._warn()
         return result
@@ -79,7 +129,7 @@ class SampleResult:
         """`log c` such that the mean duration of the complete tours is `Z / c`: `log c_tilde` with
         one phase; with several, the tours' own constants `c_tilde_{phase(k)}` averaged
         harmonically (whatever the phase rule)."""
-        times = getattr(self, "expected_tour_times", None)
+        times = self.expected_tour_times
         n = float(np.sum(self.sums.num_tours))
         if times is None or n == 0:
             return self.log_rate
@@ -166,7 +216,7 @@ class SampleResult:
             T, T2 = float(np.sum(s.sum_t, dtype=np.float64)), float(np.sum(s.sum_t2, dtype=np.float64))
             check_total_time(T, T2, "tours")
             mean = T / n
-            times = getattr(self, "expected_tour_times", None)
+            times = self.expected_tour_times
             log_z = np.asarray(self.log_rate + math.log(mean))
             if times is not None:  # several phases: tours of phase j last Z / c_tilde_j on average
                 times = np.asarray(times) if lanes is None else np.asarray(times)[lanes]
@@ -211,13 +261,10 @@ class SampleResult:
         """Tour count, mean duration against `1/c`, and tail diagnostics of tour lengths."""
         if not self.has_tours:
             raise ValueError(f"{self.sampler_name} has no tours")
-        if self.tour_length is not None:
-            expected = float(self.tour_length)
-        else:
-            try:
-                expected = math.exp(float(self.normalising_constant("importance").value) - self.tour_log_rate)
-            except ValueError:
-                expected = math.nan
+        try:  # the requested tour length, if any, corrected for the pilot's error in Z
+            expected = math.exp(float(self.normalising_constant("importance").value) - self.tour_log_rate)
+        except ValueError:
+            expected = math.nan
         s = self.sums
         n = int(np.sum(s.num_tours))
         k_hat = duration_k(self.tails, n) if self.tails is not None else math.nan
@@ -237,18 +284,18 @@ class SampleResult:
     @property
     def num_negative_rate(self) -> int:
         """States where the kill rate was negative (`c_tilde` too small for the dynamics)."""
-        return int(np.sum(getattr(self.sums, "num_negative_rate", 0)))
+        return int(np.sum(self.sums.num_negative_rate))
 
     @property
     def num_bound_exceeded(self) -> int:
         """Thinning candidates where the kill rate exceeded the bound `Gamma`."""
-        return int(np.sum(getattr(self.sums, "num_bound_exceeded", 0)))
+        return int(np.sum(self.sums.num_bound_exceeded))
 
     @property
     def max_bound_ratio(self) -> float:
         """Largest `gamma / Gamma` seen at a thinning candidate (above 1: the bound failed)."""
-        ratio = getattr(self.sums, "max_bound_ratio", None)
-        return float(np.max(ratio)) if ratio is not None and np.size(ratio) else 0.0
+        ratio = self.sums.max_bound_ratio
+        return float(np.max(ratio)) if np.size(ratio) else 0.0
 
     @property
     def num_uncovered(self) -> int:
@@ -353,7 +400,7 @@ class SampleResult:
             + (" (interrupted)" if self.interrupted else ""),
             f"  acceptance rate {self.acceptance_rate:.3f}, invalid evaluations {self.num_invalid}",
             f"  stored draws: {self.draws.shape[0]} per lane, every {self.thin}th step"
-            + (f" ({self.draws_note})" if getattr(self, "draws_note", None) else ""),
+            + (f" ({self.draws_note})" if self.draws_note else ""),
         ]
         if self.has_tours and self.log_rate is not None:
             stats = self.tour_statistics()
@@ -384,11 +431,3 @@ def _warn_unreliable(what: str, estimate: Estimate) -> None:
         UnreliableEstimateWarning,
         stacklevel=3,
     )
-
-
-def _expected_tour_times(sampler, final_state, sums):
-    """Per lane, the complete tours' `sum 1 / c_tilde_phase` (`None` with one phase)."""
-    times = getattr(sampler, "expected_tour_times", None)
-    if times is None or not hasattr(final_state, "tour"):
-        return None
-    return times(final_state.tour, sums.num_tours)

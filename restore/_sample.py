@@ -40,6 +40,7 @@ from ._checkpoint import (
 from ._observables import Observables
 from ._progress import console_note, progress_bar
 from ._result import SampleResult
+from ._sampler import AbstractSampler, check_sampler
 from ._sharding import (
     Devices,
     LaneSharding,
@@ -133,7 +134,7 @@ def _advance(
         keys = jax.vmap(lambda k: jax.random.fold_in(k, carry.step))(lane_keys)
         if sharding is None:
             new_states, info = jax.vmap(sampler.step)(keys, carry.states)
-            observed = getattr(info, "position", carry.states.position)
+            observed = info.position
             values = jax.vmap(observe)(observed)
         else:
             lanes = map_lanes(_observed_step, sharding, (sampler, observe), keys, carry.states)
@@ -181,7 +182,7 @@ def _observed_step(sampler_and_observe, key, state):
     """One lane's step, with the state its weight refers to and the observables there."""
     sampler, observe = sampler_and_observe
     new_state, info = sampler.step(key, state)
-    observed = getattr(info, "position", state.position)
+    observed = info.position
     return new_state, info, observed, observe(observed)
 
 
@@ -204,14 +205,6 @@ def _carry_shardings(carry: _Carry, sharding: LaneSharding) -> _Carry:
         draw_weights=sharding.lanes_second,
         step=sharding.replicated,
     )
-
-
-def _without_pilot(sampler):
-    """The sampler without its pilot report, which is a static field: left in, every new key's
-    pilot would make a new sampler type to `jit` and recompile the whole loop."""
-    if getattr(sampler, "pilot", None) is not None and hasattr(sampler, "_replace"):
-        return sampler._replace(pilot=None)
-    return sampler
 
 
 def _replicate(tree, sharding: LaneSharding):
@@ -296,7 +289,7 @@ def _thinning(num_steps: int, num_lanes: int, max_draws: int, thin: int | None) 
 
 
 def sample(
-    sampler,
+    sampler: AbstractSampler,
     key: PRNGKeyArray,
     *,
     num_lanes: int,
@@ -325,8 +318,9 @@ def sample(
     memory); thinned draws with their weights are kept for post-hoc work.
 
     Arguments:
-        sampler: a `JumpRestore` (or `MixtureMH`) sampler. A `JumpRestore` given a
-            `tour_length` is calibrated first with a pilot estimate of `Z`.
+        sampler: a sampler (`restore.AbstractSampler`): `JumpRestore`, `Restore` or
+            `MixtureMH`. One given a `tour_length` is calibrated first with a pilot
+            estimate of `Z` (`SampleResult.pilot`).
         key: a JAX PRNG key. Lane `i` uses `fold_in(key, i)`-derived keys, so it gives
             the same path whatever `num_lanes` is.
         num_lanes: number of independent lanes, run in parallel with `vmap`.
@@ -408,18 +402,15 @@ def sample(
         checkpoint_steps = check_integer(checkpoint_steps, "checkpoint_steps")
     checkpoint_seconds = check_interval(checkpoint_seconds)
     sharding = lane_sharding(devices, num_lanes)
-    if not hasattr(sampler, "init") or not hasattr(sampler, "step"):
-        raise TypeError(f"sampler must have init and step methods, got {type(sampler).__name__}")
-    if weights == "time" and getattr(sampler, "is_diffusion", False):
+    sampler = check_sampler(sampler)
+    if weights == "time" and sampler.is_diffusion:
         raise ValueError(
             "weights='time' is not available for diffusion dynamics: a thinning candidate stands for "
             "1/Gamma time units of the path (Campbell's formula), so use weights='rao_blackwell'"
         )
 
     key_pilot, key_init, key_run = jax.random.split(key, 3)
-    if getattr(sampler, "log_rate", 0.0) is None:
-        sampler = sampler.calibrate(key_pilot)
-    calibrated, sampler = sampler, _without_pilot(sampler)
+    sampler, pilot = sampler.calibrate(key_pilot) if sampler.needs_calibration else (sampler, None)
     dim = sampler.dim
     if positions is not None:
         try:
@@ -454,7 +445,7 @@ def sample(
             console_note(draws_note)
 
     chunk = math.ceil(num_steps / min(num_chunks, num_steps))
-    has_tours = bool(getattr(sampler, "has_tours", False))
+    has_tours = sampler.has_tours
     depth = records_per_lane(num_lanes, observe.size) if has_tours else 0
 
     def start_carry(states):
@@ -573,7 +564,8 @@ def sample(
     wall_time = elapsed()
     carry = to_host(run.carry) if sharding is not None else run.carry  # numpy, gathered over devices (and processes)
     return SampleResult.from_run(
-        sampler=calibrated,
+        sampler=sampler,
+        pilot=pilot,
         observables=observe,
         sums=run.sums,
         histogram=run.histogram,

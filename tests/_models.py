@@ -68,7 +68,7 @@ class RateDistortion(AbstractRegeneration):
 
 
 def calibrated(sampler, seed=123):
-    return sampler.calibrate(jax.random.key(seed))
+    return sampler.calibrate(jax.random.key(seed))[0]
 
 
 def mode_indicator(target):

@@ -6,8 +6,8 @@ rates use the wrong reference) must fail it.
 """
 
 import warnings
+from typing import ClassVar
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -127,7 +127,7 @@ def test_langevin_restore_is_stationary():
     target = mixture_2d()
     reference = diffusion_reference(target)
     process = restore.Restore(target.logdensity, OverdampedLangevin(1.0, step_size=0.01), reference, tour_length=1.0, bound=60.0)
-    check(process.calibrate(jax.random.key(0)), target, True)
+    check(process.calibrate(jax.random.key(0))[0], target, True)
 
 
 def test_generic_diffusion_restore_is_stationary():
@@ -189,7 +189,7 @@ def test_exit_dependent_transfer_is_stationary_and_the_mu_star_rate_is_not():
 def test_metropolis_transfer_is_stationary():
     target = mixture_2d()
     transfer = MetropolisTransfer(Gaussian(target.mean, 2.0 * target.covariance), 1.0, num_steps=3)
-    process = restore.Restore(target.logdensity, Jump(RandomWalk(0.8)), transfer, tour_length=1.0).calibrate(jax.random.key(0))
+    process = restore.Restore(target.logdensity, Jump(RandomWalk(0.8)), transfer, tour_length=1.0).calibrate(jax.random.key(0))[0]
     check(process, target, True, time=4.0)
 
 
@@ -216,13 +216,22 @@ def test_dependent_tours_give_lane_based_errors_that_are_calibrated():
 # --------------------------------------------------------------------------- schedules
 
 
-class StationaryPhase(eqx.Module):
+class StationaryPhase(restore.AbstractSampler):
     """Starts each lane in a random phase with probabilities proportional to `1 / c_k`: with
     `X_0 ~ pi` independent of it, that is the stationary law of (state, phase)."""
 
     process: restore.Restore
+    has_tours: ClassVar[bool] = True
 
-    def init(self, key, position):
+    @property
+    def dim(self):
+        return self.process.dim
+
+    @property
+    def dtype(self):
+        return self.process.dtype
+
+    def init(self, key, position=None):
         k_phase, k_init = jax.random.split(key)
         weights = -jnp.asarray(self.process.log_rate)
         phase = jax.random.categorical(k_phase, weights)
@@ -230,6 +239,9 @@ class StationaryPhase(eqx.Module):
 
     def step(self, key, state):
         return self.process.step(key, state)
+
+    def advance_position(self, key, state, duration):
+        return self.process.advance_position(key, state, duration)
 
 
 class SwappedReference(AbstractTransfer):

@@ -75,10 +75,14 @@ def test_tour_length_needs_calibration_and_reports_the_pilot():
     sampler = restore.JumpRestore(std_normal, RandomWalk(0.5), Gaussian(jnp.zeros(2), 2.0), tour_length=4.0)
     with pytest.raises(ValueError, match="calibrate"):
         sampler.init(jax.random.key(0))
-    calibrated = sampler.calibrate(jax.random.key(1))
+    calibrated, pilot = sampler.calibrate(jax.random.key(1))
     true_log_z = np.log(2 * np.pi)  # std_normal is unnormalised in 2-d
-    assert abs(calibrated.pilot.log_z - true_log_z) < 5 * calibrated.pilot.relative_standard_error
-    np.testing.assert_allclose(float(calibrated.log_rate), calibrated.pilot.log_z - np.log(4.0))
+    assert abs(pilot.log_z - true_log_z) < 5 * pilot.relative_standard_error
+    np.testing.assert_allclose(float(calibrated.log_rate), pilot.log_z - np.log(4.0))
+    again, no_pilot = calibrated.calibrate(jax.random.key(2))
+    assert again is calibrated and no_pilot is None  # a rate is kept, no second pilot
+    result = restore.sample(sampler, jax.random.key(3), num_lanes=4, num_steps=20, progress=False)
+    assert result.pilot is not None and result.tour_length == (4.0,)
 
 
 @pytest.mark.parametrize(

@@ -21,6 +21,7 @@ import math
 import os
 import re
 import warnings
+from typing import ClassVar
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -184,12 +185,19 @@ class ProbeState(eqx.Module):
     logdensity: jax.Array
 
 
-class Probe(eqx.Module):
+class Probe(restore.AbstractSampler):
     """A stand-in sampler for checking `restore.sample`'s arguments: its first step raises
     `Accepted` while the run is traced, before anything is compiled."""
 
-    dim: int = 2
-    log_rate: float = 0.0
+    has_tours: ClassVar[bool] = False
+
+    @property
+    def dim(self):
+        return 2
+
+    @property
+    def dtype(self):
+        return jnp.result_type(float)
 
     def init(self, key, position=None):
         return ProbeState(jnp.zeros(self.dim) if position is None else position, jnp.zeros(()))
@@ -529,10 +537,11 @@ def test_a_regeneration_that_misses_the_support_fails_the_pilot(half_width, widt
     bad_low, bad_high = (low - 0.1, low + width + 0.1) if poisoned else (9.0, 9.5)
     density = target(half_width, bad_low, bad_high, bad_value)
     sampler = restore.JumpRestore(density, KERNELS["RandomWalk"], nu, tour_length=2.0, pilot_size=64)
-    calibrated, error = outcome(lambda: sampler.calibrate(KEY))
+    calibration, error = outcome(lambda: sampler.calibrate(KEY))
     if where == "inside" and not poisoned:
         assert error is None, error
-        assert math.isfinite(calibrated.pilot.log_z) and math.isfinite(float(calibrated.log_rate))
+        calibrated, pilot = calibration
+        assert math.isfinite(pilot.log_z) and math.isfinite(float(calibrated.log_rate))
         return
     assert isinstance(error, ValueError) and "misses the target's support" in str(error), error
     assert (r"NaN or +inf" in str(error)) == poisoned

@@ -150,7 +150,7 @@ class JumpRestoreRunner(_SampleRunner):
         # The pilot estimate is a static field of the calibrated sampler: a fresh one per
         # run would recompile `restore.sample`'s loop every time. It is dropped once
         # `log_rate` is set, so every run reuses one compiled program.
-        return sampler.calibrate(key)._replace(pilot=None)
+        return sampler.calibrate(key)[0]
 
     def _extra_evaluations(self, result) -> int:
         return self.pilot_size

@@ -9,6 +9,8 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, PRNGKeyArray
 
+from .._sampler import check_sampler
+
 
 @eqx.filter_jit
 def _run(sampler, keys: Array, positions: Array, time: float, max_steps: int):
@@ -30,20 +32,17 @@ def _run(sampler, keys: Array, positions: Array, time: float, max_steps: int):
         zero, count = jnp.zeros((), positions.dtype), jnp.zeros((), jnp.int32)
         loop = (state, zero, jnp.zeros((), bool), count, jnp.zeros((2,), jnp.int32))
         state, elapsed, done, steps, flaws = jax.lax.while_loop(cond, body, loop)
-        advance = getattr(sampler, "advance_position", None)
-        if advance is None:
-            return state.position, done, steps, flaws
-        # Diffusions move on between events: the event that would end the wait comes after
+        # Jump processes hold still between events. Diffusions move on between events: the event that would end the wait comes after
         # `time`, and (memoryless, independent of the path) the path to `time` is a fresh one.
-        return advance(jax.random.fold_in(key, 2**31 - 1), state, time - elapsed), done, steps, flaws
+        return sampler.advance_position(jax.random.fold_in(key, 2**31 - 1), state, time - elapsed), done, steps, flaws
 
     return jax.vmap(one_lane)(keys, positions)
 
 
 def _flaws(info, counted: Array) -> Array:
     """Counts of the step's departures from the exact process: `(bound exceeded, negative rate)`."""
-    exceeded = getattr(info, "bound_ratio", jnp.zeros(())) > 1
-    negative = getattr(info, "negative_rate", jnp.zeros((), bool))
+    exceeded = info.bound_ratio > 1
+    negative = info.negative_rate
     return jnp.stack([exceeded & counted, negative & counted]).astype(jnp.int32)
 
 
@@ -66,6 +65,7 @@ class FixedTimeRun(NamedTuple):
 
 def simulate_to_time(sampler, key: PRNGKeyArray, positions: Array, time: float, max_steps: int = 100_000) -> FixedTimeRun:
     """`fixed_time_states`, also counting the steps where the simulation was not exact."""
+    sampler = check_sampler(sampler)
     if not time > 0:
         raise ValueError(f"time must be positive, got {time!r}")
     positions = jnp.asarray(positions)
@@ -89,8 +89,8 @@ def fixed_time_states(sampler, key: PRNGKeyArray, positions: Array, time: float,
     steps) is *not* target-distributed, because short holding times are over-counted.
 
     Arguments:
-        sampler: any sampler with `init(key, position)` and `step` returning info with a
-            `holding_time`.
+        sampler: a `restore.AbstractSampler` (its steps' `StepInfo.holding_time` are the
+            real holding times).
         key: PRNG key.
         positions: `(n, d)` starting points.
         time: the fixed time `t > 0`.
