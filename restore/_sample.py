@@ -66,7 +66,6 @@ class _Carry(NamedTuple):
     sums: LaneSums
     histogram: tuple[Array, Array]
     tours: TourRecords
-    tails: TourTails
     draws: Array
     draw_weights: Array
     step: Array
@@ -165,17 +164,12 @@ def _advance(
                 draws,
                 draw_weights,
             )
-        new = _Carry(states, sums, histogram, tours, carry.tails, draws, draw_weights, carry.step + 1)
+        new = _Carry(states, sums, histogram, tours, draws, draw_weights, carry.step + 1)
         if sharding is not None:
             new = jax.lax.with_sharding_constraint(new, _carry_shardings(new, sharding))
         return new, done + 1
 
-    carry, done = jax.lax.while_loop(cond, body, (carry, jnp.zeros((), jnp.int32)))
-    if carry.tours.capacity > 0:  # the chunk's tours join each lane's largest
-        args = (carry.tails, carry.tours)
-        tails = keep_largest(*args) if sharding is None else map_devices(keep_largest, sharding, *args)
-        carry = carry._replace(tails=tails, tours=emptied(carry.tours))
-    return carry, done
+    return jax.lax.while_loop(cond, body, (carry, jnp.zeros((), jnp.int32)))
 
 
 def _observed_step(sampler_and_observe, key, state):
@@ -200,7 +194,6 @@ def _carry_shardings(carry: _Carry, sharding: LaneSharding) -> _Carry:
         sums=lanes(carry.sums),
         histogram=jax.tree.map(lambda _: sharding.lanes, carry.histogram),  # one row per device
         tours=lanes(carry.tours),
-        tails=lanes(carry.tails),
         draws=sharding.lanes_second,
         draw_weights=sharding.lanes_second,
         step=sharding.replicated,
@@ -214,17 +207,21 @@ def _replicate(tree, sharding: LaneSharding):
 
 
 class _Run(NamedTuple):
-    """A run's progress: the device carry and the float64 host totals drained from it."""
+    """A run's progress: the device carry and the float64 host totals drained from it
+    (sums, tour histogram, and each lane's largest tours, merged from the tour records)."""
 
     carry: _Carry
     sums: LaneSums | None
     histogram: tuple | None
+    tails: TourTails
 
 
 @eqx.filter_jit
 def _restart(carry: _Carry, sharding: LaneSharding | None = None) -> _Carry:
-    """The carry after its sums and histogram have been drained to the host."""
-    restarted = carry._replace(sums=restart_sums(carry.sums), histogram=jax.tree.map(jnp.zeros_like, carry.histogram))
+    """The carry after its sums, histogram and tour records have been drained to the host."""
+    restarted = carry._replace(
+        sums=restart_sums(carry.sums), histogram=jax.tree.map(jnp.zeros_like, carry.histogram), tours=emptied(carry.tours)
+    )
     if sharding is not None:
         restarted = jax.lax.with_sharding_constraint(restarted, _carry_shardings(restarted, sharding))
     return restarted
@@ -233,8 +230,8 @@ def _restart(carry: _Carry, sharding: LaneSharding | None = None) -> _Carry:
 class _Saver:
     """Saves a run's progress to its checkpoint file and loads it back (onto the devices of a sharded run)."""
 
-    def __init__(self, path, fingerprint: dict, layout: _Carry | None):
-        self.path, self.fingerprint, self.layout = path, fingerprint, layout
+    def __init__(self, path, fingerprint: dict, layout: _Carry | None, tails: TourTails):
+        self.path, self.fingerprint, self.layout, self.tails = path, fingerprint, layout, tails
         self.last = time.perf_counter()
 
     def seconds_since_save(self) -> float:
@@ -270,7 +267,7 @@ class _Saver:
 
     def load(self, carry: _Carry) -> tuple[_Run, dict]:
         host = to_host((carry.sums, carry.histogram))
-        like = _Run(carry, drain_sums(None, host[0]), drain_histogram(None, host[1]))
+        like = _Run(carry, drain_sums(None, host[0]), drain_histogram(None, host[1]), self.tails)
         run, header = load_checkpoint(self.path, like, self.fingerprint)
         if self.layout is not None:
             restored = jax.tree.map(put, run.carry, self.layout)
@@ -286,6 +283,18 @@ def _thinning(num_steps: int, num_lanes: int, max_draws: int, thin: int | None) 
     thin = check_integer(thin, "thin")
     stored = 0 if max_draws <= 0 else min(math.ceil(num_steps / thin), max(max_draws // num_lanes, 0))
     return int(thin), int(stored)
+
+
+def _draw_capacity(stored: int, num_lanes: int, max_draws: int) -> int:
+    """Rows of the draws buffer: `stored` rounded up to a power of two, within the budget.
+
+    The buffer's shape is part of the compiled program; rounding it up lets runs of
+    other lengths (most of all, several short runs) share one program. The extra rows are
+    never written and are cut off the result.
+    """
+    if stored == 0:
+        return 0
+    return min(1 << (stored - 1).bit_length(), max(max_draws // num_lanes, stored))
 
 
 def sample(
@@ -432,6 +441,7 @@ def sample(
 
     thin_given = thin
     thin, stored = _thinning(num_steps, num_lanes, max_draws, thin)
+    capacity = _draw_capacity(stored, num_lanes, max_draws)
     draws_note = None
     if thin_given is None and thin > 1 and stored > 0:
         draws_note = (
@@ -457,9 +467,8 @@ def sample(
             sums=init_lane_sums(num_lanes, observe.size, dtype, jnp.full((num_lanes,), positions is not None)),
             histogram=histogram,
             tours=init_records(num_lanes, observe.size, depth, dtype),
-            tails=init_tails(num_lanes, observe.size, tail_depth(num_lanes, observe.size) if has_tours else 0, dtype),
-            draws=jnp.zeros((stored, num_lanes, dim), dtype),
-            draw_weights=jnp.zeros((stored, num_lanes), dtype),
+            draws=jnp.zeros((capacity, num_lanes, dim), dtype),
+            draw_weights=jnp.zeros((capacity, num_lanes), dtype),
             step=jnp.zeros((), jnp.int32),
         )
 
@@ -474,7 +483,8 @@ def sample(
     rao_blackwell = weights == "rao_blackwell"
 
     saver = None
-    run = _Run(carry, None, None)
+    tails = init_tails(num_lanes, observe.size, tail_depth(num_lanes, observe.size) if has_tours else 0)
+    run = _Run(carry, None, None, tails)
     done, finishing_steps, unfinished, finished, spent = 0, 0, 0, False, 0.0
     if checkpoint is not None:
         fingerprint = {
@@ -495,7 +505,7 @@ def sample(
             "finish_tours": bool(finish_tours),
             "num_devices": 1 if sharding is None else sharding.num_devices,
         }
-        saver = _Saver(checkpoint, fingerprint, layout)
+        saver = _Saver(checkpoint, fingerprint, layout, tails)
         if saver.should_resume(resume):
             run, header = saver.load(carry)
             done, spent, finished = header["done"], header["wall_time"], header["finished"]
@@ -507,9 +517,10 @@ def sample(
         """Advance every lane, then move the chunk's sums to the float64 host totals."""
         args = (lane_keys, jnp.asarray(length, jnp.int32), jnp.asarray(finishing), jnp.asarray(thin, jnp.int32), rao_blackwell, sharding)
         advanced, steps_taken = _advance(sampler, observe, run.carry, *args)
-        host_sums, host_histogram = to_host((advanced.sums, advanced.histogram))  # waits for the chunk
+        host_sums, host_histogram, records = to_host((advanced.sums, advanced.histogram, advanced.tours))  # waits for the chunk
         sums, histogram = drain_sums(run.sums, host_sums), drain_histogram(run.histogram, host_histogram)
-        return _Run(_restart(advanced, sharding), sums, histogram), int(steps_taken)
+        tails = keep_largest(run.tails, records)  # the chunk's tours join each lane's largest
+        return _Run(_restart(advanced, sharding), sums, histogram, tails), int(steps_taken)
 
     start, interrupted = time.perf_counter(), False
     elapsed = lambda: spent + time.perf_counter() - start  # noqa: E731
@@ -569,7 +580,7 @@ def sample(
         observables=observe,
         sums=run.sums,
         histogram=run.histogram,
-        tails=carry.tails if has_tours else None,
+        tails=run.tails if has_tours else None,
         draws=carry.draws[: min(stored, math.ceil(done / thin))],
         draw_weights=carry.draw_weights[: min(stored, math.ceil(done / thin))],
         final_state=carry.states,

@@ -1,6 +1,6 @@
 """The largest tours of every lane, and the tail shapes `k_hat` read off them.
 
-Each lane keeps (on the device, updated once per chunk from the chunk's tour records) its
+Each lane keeps (on the host, updated after every chunk from the chunk's tour records) its
 `K` longest tours with their observable integrals `F`, for each observable component `j`
 its `K` tours of largest `|F_j|` with their durations, and its `K` largest importance
 weights `p(y) / q(y)` at tour starts. These are exact per-lane top sets, so after the run
@@ -24,8 +24,6 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
@@ -61,48 +59,60 @@ def tail_depth(num_lanes: int, size: int) -> int:
     return int(max(8, min(MAX_TAIL_PER_LANE, MAX_TAIL_ELEMENTS // max(num_lanes * (3 * size + 2), 1))))
 
 
-def init_tails(num_lanes: int, size: int, depth: int, dtype) -> TourTails:
-    """Empty sets (depth 0 for samplers without tours)."""
-    ninf = jnp.full((num_lanes, depth), -jnp.inf, dtype)
+def init_tails(num_lanes: int, size: int, depth: int) -> TourTails:
+    """Empty float64 sets on the host (depth 0 for samplers without tours)."""
+    ninf = np.full((num_lanes, depth), -np.inf)
     return TourTails(
         ninf,
-        jnp.zeros((num_lanes, depth, size), dtype),
-        jnp.zeros((num_lanes, size, depth), dtype),
-        jnp.full((num_lanes, size, depth), -jnp.inf, dtype),
-        ninf,
+        np.zeros((num_lanes, depth, size)),
+        np.zeros((num_lanes, size, depth)),
+        np.full((num_lanes, size, depth), -np.inf),
+        ninf.copy(),
     )
 
 
+def _top(values: np.ndarray, depth: int) -> np.ndarray:
+    """Indices of the `depth` largest entries along the last axis (in no particular order)."""
+    return np.argpartition(values, values.shape[-1] - depth, axis=-1)[..., -depth:]
+
+
 def keep_largest(tails: TourTails, records: TourRecords) -> TourTails:
-    """Each lane's top sets with the tours and starts of its records added (jitted, per chunk)."""
+    """Each lane's top sets with the tours and starts of one chunk's records added.
+
+    Runs on the host, in NumPy, after every chunk: a partial sort there takes a few
+    milliseconds where XLA's `top_k` on the CPU sorts with a comparator call per
+    comparison (a few hundred milliseconds per chunk for 512 lanes).
+    """
     depth = tails.duration.shape[1]
     if depth == 0:
         return tails
-    slots = jnp.arange(records.capacity)
+    records = TourRecords(*(np.asarray(a) for a in records))
+    slots = np.arange(records.duration.shape[1])
     ended = slots[None, :] < records.count[:, None]
-    new_duration = jnp.where(ended, records.duration, -jnp.inf)
+    new_duration = np.where(ended, records.duration, -np.inf)
 
-    duration = jnp.concatenate([tails.duration, new_duration], axis=1)
-    kept, index = jax.lax.top_k(duration, depth)
-    integrals = jnp.concatenate([tails.duration_integral, records.integral], axis=1)
-    duration_integral = jnp.take_along_axis(integrals, index[:, :, None], axis=1)
+    duration = np.concatenate([tails.duration, new_duration], axis=1)
+    index = _top(duration, depth)
+    integrals = np.concatenate([tails.duration_integral, records.integral], axis=1)
+    kept = np.take_along_axis(duration, index, axis=1)
+    duration_integral = np.take_along_axis(integrals, index[:, :, None], axis=1)
 
-    new_integral = jnp.swapaxes(records.integral, 1, 2)  # (L, m, R)
-    integral = jnp.concatenate([tails.integral, new_integral], axis=2)
+    new_integral = np.swapaxes(records.integral, 1, 2)  # (L, m, R)
+    integral = np.concatenate([tails.integral, new_integral], axis=2)
     shape = new_integral.shape
-    integral_duration = jnp.concatenate([tails.integral_duration, jnp.broadcast_to(new_duration[:, None, :], shape)], axis=2)
-    score = jnp.where(jnp.isfinite(integral_duration), jnp.abs(integral), -jnp.inf)
-    _, by_size = jax.lax.top_k(score, depth)
+    integral_duration = np.concatenate([tails.integral_duration, np.broadcast_to(new_duration[:, None, :], shape)], axis=2)
+    score = np.where(np.isfinite(integral_duration), np.abs(integral), -np.inf)
+    by_size = _top(score, depth)
 
     started = slots[None, :] < records.starts[:, None]
-    weights = jnp.concatenate([tails.log_importance_weight, jnp.where(started, records.log_importance_weight, -jnp.inf)], axis=1)
-    weights = jnp.where(jnp.isnan(weights), -jnp.inf, weights)
+    weights = np.concatenate([tails.log_importance_weight, np.where(started, records.log_importance_weight, -np.inf)], axis=1)
+    weights = np.where(np.isnan(weights), -np.inf, weights)
     return TourTails(
         kept,
         duration_integral,
-        jnp.take_along_axis(integral, by_size, axis=2),
-        jnp.take_along_axis(integral_duration, by_size, axis=2),
-        jax.lax.top_k(weights, depth)[0],
+        np.take_along_axis(integral, by_size, axis=2),
+        np.take_along_axis(integral_duration, by_size, axis=2),
+        np.take_along_axis(weights, _top(weights, depth), axis=1),
     )
 
 
