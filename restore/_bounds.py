@@ -29,7 +29,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
-from .regeneration._utils import as_float_array
+from ._validation import as_float_array
 
 ScalarFn = Callable[[Float[Array, " d"]], Float[Array, ""]]
 

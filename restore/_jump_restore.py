@@ -7,7 +7,8 @@ from collections.abc import Callable
 from jaxtyping import Array
 
 from ._restore import AbstractRestore, RestoreState
-from ._validation import check_parts
+from ._parts import check_parts
+from ._validation import check_positive
 from .dynamics import Jump
 from .local import AbstractLocalKernel
 from .regeneration import AbstractRegeneration
@@ -67,8 +68,6 @@ class JumpRestore(AbstractRestore):
         check_parts(logdensity, local, regeneration)
         if log_rate is not None and getattr(log_rate, "ndim", 0) != 0:
             raise ValueError(f"log_rate must be a scalar, got shape {log_rate.shape}")
-        from ._rate import check_positive
-
         if local_rate is None:
             raise TypeError("local_rate must be a positive number (the rate r of local moves), got None")
         dynamics = Jump(local, check_positive(local_rate, "local_rate"))

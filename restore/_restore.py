@@ -21,7 +21,6 @@ from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 from ._point import Point, evaluate
 from ._rate import (
     PilotEstimate,
-    check_positive,
     kill_log_probability,
     log_kill_rate,
     log_total_kill_rate,
@@ -29,7 +28,7 @@ from ._rate import (
     pilot_log_z,
 )
 from ._sampler import AbstractSampler, RunFacts, StepInfo
-from ._validation import check_integer, check_logdensity, check_position
+from ._validation import check_integer, check_logdensity, check_point, check_positive
 from .dynamics import AbstractDiffusion, AbstractDynamics, AbstractJumpDynamics
 from .transfer import AbstractTransfer
 
@@ -313,7 +312,7 @@ class AbstractRestore(AbstractSampler):
         if position is None:
             position = self._by_phase(phase, lambda k: self.transfers[k].reference.sample(key).astype(self.dtype))
         else:
-            position = check_position(position, self.dim)
+            position = check_point(position, self.dim, "position", finite=True)
         position = position.astype(self.dtype)
         point, invalid = evaluate(self.logdensity, position, self.uses_gradient)
         point, _, _, log_kill, adjoint = self._terms(phase, point, invalid, log_rates)
@@ -432,7 +431,7 @@ class AbstractRestore(AbstractSampler):
         `restore.rate_bound(process.kill_rate, lower, upper, key=key).bound`.
         """
         log_rates = self._require_rate()
-        position = check_position(position, self.dim).astype(self.dtype)
+        position = check_point(position, self.dim, "position", finite=True).astype(self.dtype)
         point, invalid = evaluate(self.logdensity, position, self.uses_gradient)
         phase = jnp.asarray(phase, jnp.int32)
         _, _, _, log_kill, adjoint = self._terms(phase, point, invalid, log_rates)

@@ -306,9 +306,11 @@ def test_uniform_torus():
     assert np.all((x >= 0) & (x < 1))
     for i in range(3):
         assert st.kstest(x[:, i], st.uniform().cdf).pvalue > PVAL
-    for bad_dim in (0, -1, 2.5, True):
+    for bad_dim in (0, -1, 2.5):
         with pytest.raises(ValueError, match="positive int"):
             UniformTorus(bad_dim)
+    with pytest.raises(TypeError, match="positive int"):  # a boolean is not a count
+        UniformTorus(True)
 
 
 # -------------------------------------------------------------------- Mixture

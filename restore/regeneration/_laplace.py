@@ -17,7 +17,7 @@ from jaxtyping import Array, ArrayLike, Float, Int
 from ._gaussian import Gaussian
 from ._mixture import Mixture
 from ._student_t import StudentT
-from ._utils import as_float_array
+from .._validation import as_float_array
 
 # A converged optimum must satisfy sqrt(g^T Sigma g) < this, i.e. the remaining
 # Newton step is below this many posterior standard deviations.
