@@ -603,9 +603,9 @@ def test_laplace_errors(starts_2d, modes_2d):
         find_modes(logdensity_2d, starts_2d, merge_tol=-1.0)
     with pytest.raises(ValueError, match="max_steps"):
         find_modes(logdensity_2d, starts_2d, max_steps=0)
-    with pytest.raises(ValueError, match="solver"):
+    with pytest.raises(TypeError, match="solver"):
         find_modes(logdensity_2d, starts_2d, solver="bfgs")
-    with pytest.raises(ValueError, match="LaplaceModes"):
+    with pytest.raises(TypeError, match="LaplaceModes"):
         mixture_from_modes(np.zeros((3, 2)))
     for kwargs, match in [
         ({"tails": "cauchy"}, "tails"),
