@@ -19,17 +19,15 @@ given starts: they find lower bounds on the true suprema, never proofs.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from typing import NamedTuple
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optimistix as optx
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
-from ._multistart import ScalarFn, check_box, default_solver, check_starts, search, solve
+from ._multistart import ScalarFn, check_box, check_starts, default_solver, search, solve
 from ._validation import check_integer, check_scalar_fn
 
 

@@ -6,8 +6,8 @@ from collections.abc import Callable
 
 from jaxtyping import Array
 
-from ._restore import AbstractRestore, RestoreState
 from ._parts import check_parts
+from ._restore import AbstractRestore, RestoreState
 from ._validation import check_positive
 from .dynamics import Jump
 from .local import AbstractLocalKernel

@@ -9,9 +9,9 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, PRNGKeyArray
 
+from ._parts import check_parts
 from ._point import Point, evaluate
 from ._sampler import AbstractSampler, StepInfo
-from ._parts import check_parts
 from ._validation import check_point
 from .local import AbstractLocalKernel
 from .local._base import metropolis_accept

@@ -1,6 +1,5 @@
 import jax
 
-
 jax.config.update("jax_enable_x64", True)
 
 import functools  # noqa: E402
@@ -14,17 +13,16 @@ from jax.scipy.special import logsumexp  # noqa: E402
 
 from restore.regeneration import (  # noqa: E402
     AbstractRegeneration,
-    find_modes,
     Gaussian,
-    laplace_mixture,
     LaplaceModes,
     Mixture,
-    mixture_from_modes,
     StudentT,
     UniformBox,
     UniformTorus,
+    find_modes,
+    laplace_mixture,
+    mixture_from_modes,
 )
-
 
 KEY = jax.random.key(20240611)
 PVAL = 1e-3

@@ -12,8 +12,8 @@ import numpy as np
 from jax.scipy.special import gammaln
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
-from ._base import AbstractRegeneration
 from .._validation import as_float_array, check_point, check_shape
+from ._base import AbstractRegeneration
 
 
 def _positive_weights(weights: ArrayLike, shape: tuple[int, ...], name: str) -> np.ndarray:

@@ -10,9 +10,9 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
-from ._base import AbstractRegeneration
 from .._linalg import half_log_det, mahalanobis_sq
 from .._validation import check_point, check_shape, check_vector
+from ._base import AbstractRegeneration
 from ._utils import scale_tril
 
 

@@ -12,8 +12,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
-from ._base import AbstractRegeneration
 from .._validation import as_float_array, check_point, check_shape, is_concrete
+from ._base import AbstractRegeneration
 
 
 def _stack(components: tuple[AbstractRegeneration, ...]) -> AbstractRegeneration | None:

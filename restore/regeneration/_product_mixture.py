@@ -10,9 +10,9 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
+from .._validation import as_float_array, check_point, check_shape
 from ._base import AbstractRegeneration
 from ._diagonal_mixture import _positive_weights
-from .._validation import as_float_array, check_point, check_shape
 
 
 @final

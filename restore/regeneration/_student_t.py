@@ -12,9 +12,9 @@ import numpy as np
 from jax.scipy.special import betaln, gammaln
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
-from ._base import AbstractRegeneration
 from .._linalg import half_log_det, mahalanobis_sq
 from .._validation import as_float_array, check_point, check_shape, check_vector, is_concrete
+from ._base import AbstractRegeneration
 from ._utils import scale_tril
 
 #: Integer degrees of freedom up to this use the sum-of-squares chi-square draw.

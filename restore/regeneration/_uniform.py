@@ -10,8 +10,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
-from ._base import AbstractRegeneration
 from .._validation import check_integer, check_point, check_shape, check_vector, is_concrete
+from ._base import AbstractRegeneration
 
 
 @final
