@@ -147,7 +147,7 @@ def compare_renderers(
     for scene_name in scenes:
         scene_key = Path(scene_name).stem
         references[scene_key] = reference = reference_image(scene_name, reference_spp, resolution=resolution, max_depth=max_depth)
-        scene = load_scene(scene_name, resolution, max_depth, log=lambda note, name=scene_key: say(f"{name}: note: {note}"))
+        scene = load_scene(scene_name, resolution, max_depth, log=lambda note, name=scene_key: say(f"{name}: note: {note}"))  # type: ignore[misc]
         target = PrimarySampleSpace(scene)
         throughput[scene_key] = (target.paths_per_second(), native_paths_per_second(scene, max_depth=max_depth))
         for method in methods:

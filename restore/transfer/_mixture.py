@@ -116,5 +116,5 @@ class TransferMixture(AbstractTransfer):
         missing = [type(c).__name__ for c in self.components if not hasattr(c, "log_transition_density")]
         if missing:
             raise NotImplementedError(f"components {missing} have no transition density, so neither has the mixture")
-        terms = jnp.stack([c.log_transition_density(exit_position, position) for c in self.components])
+        terms = jnp.stack([c.log_transition_density(exit_position, position) for c in self.components])  # type: ignore[attr-defined]
         return jax.scipy.special.logsumexp(self.log_weights + terms)
