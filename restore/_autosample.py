@@ -388,7 +388,7 @@ def autosample(
         weights = result.draw_weights.reshape(-1)
         groups = np.broadcast_to(np.arange(result.num_lanes), result.draw_weights.shape).reshape(-1)
 
-    report, fit, u, log_z = best
+    report, fit, u, log_z = best  # type: ignore[misc]
     clock = time.perf_counter()
     sampler, piloted = sampler_for(fit, u, log_z)
     sample_kwargs.setdefault("progress", progress)

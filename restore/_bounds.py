@@ -12,52 +12,23 @@ target invariant). Two constants must be searched for:
   `sup_y (-a(y) p(y) / q(y))` over `{a < 0}`;
 - `rate_bound`: a thinning bound `Gamma >= sup gamma` over a box.
 
-Both are multi-start local searches (`maximise`, optimistix BFGS) from the
+Both are multi-start local searches (`restore._multistart`, optimistix BFGS) from the
 given starts: they find lower bounds on the true suprema, never proofs.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from typing import NamedTuple
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optimistix as optx
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
-from .regeneration._utils import as_float_array
-
-ScalarFn = Callable[[Float[Array, " d"]], Float[Array, ""]]
-
-
-class SearchResult(NamedTuple):
-    """The outcome of `maximise`.
-
-    Attributes:
-        value: the largest finite value found (NaN when no start gave one).
-        argmax: where it was found, shape `(d,)` (NaN when none).
-        values: per start, the better finite value of the start itself and of
-            the optimiser's end point (NaN when neither is finite), shape `(n,)`.
-        argmaxes: the points of `values`, shape `(n, d)`.
-        num_failed: how many optimisations ended at a non-finite point or a
-            non-finite value (the start's own value still counts if finite).
-        start_values: the function at every start, unfiltered, shape `(n,)`.
-        end_values: the function at every end point, unfiltered, shape `(n,)`;
-            with `start_values`, tells an infinite value (`+inf`) from a failure
-            (`nan`).
-    """
-
-    value: float
-    argmax: Float[Array, " d"]
-    values: Float[Array, " n"]
-    argmaxes: Float[Array, "n d"]
-    num_failed: int
-    start_values: Float[Array, " n"]
-    end_values: Float[Array, " n"]
+from ._multistart import ScalarFn, check_box, check_starts, default_solver, search, solve
+from ._validation import check_integer, check_scalar_fn
 
 
 class MinimalRate(NamedTuple):
@@ -95,210 +66,6 @@ class RateBound(NamedTuple):
     bound: float
     argmax: Float[Array, " d"]
     sup_found: float
-
-
-# --------------------------------------------------------------------------- #
-# The compiled solve
-# --------------------------------------------------------------------------- #
-
-
-def _default_solver(dtype) -> optx.AbstractMinimiser:
-    tol = float(np.sqrt(np.finfo(dtype).eps))
-    return optx.BFGS(rtol=tol, atol=tol)
-
-
-# Module-level and filter-jitted: the user's function (or an `eqx.Module`
-# wrapping the user's functions) is a static argument hashed by identity, so a
-# repeated call with the same functions, solver, box-or-not and shapes reuses
-# the compilation. Returns the values at the starts, the end points and the
-# values at the end points.
-@eqx.filter_jit
-def _solve(fn, solver, max_steps, starts, lower, upper):
-    bounded = lower is not None
-
-    def to_y(z):
-        if bounded:
-            # Clipped: rounding must not put a point outside the box.
-            return jnp.clip(lower + (upper - lower) * jax.nn.sigmoid(z), lower, upper)
-        return z
-
-    def objective(z, args):
-        return -jnp.asarray(fn(to_y(z)), starts.dtype)
-
-    if bounded:
-        eps = jnp.finfo(starts.dtype).eps
-        t = jnp.clip((starts - lower) / (upper - lower), eps, 1 - eps)
-        z0 = jnp.log(t) - jnp.log1p(-t)
-    else:
-        z0 = starts
-
-    def one(z):
-        sol = optx.minimise(objective, solver, z, max_steps=max_steps, throw=False)
-        return to_y(sol.value)
-
-    ends = jax.vmap(one)(z0)
-    value = jax.vmap(lambda y: jnp.asarray(fn(y), starts.dtype))
-    return value(starts), ends, value(ends)
-
-
-# --------------------------------------------------------------------------- #
-# Validation
-# --------------------------------------------------------------------------- #
-
-
-def _check_starts(starts: ArrayLike) -> Array:
-    starts = as_float_array(starts)
-    if starts.ndim != 2 or starts.shape[0] == 0 or starts.shape[1] == 0:
-        raise ValueError(
-            f"`starts` must be a non-empty 2-D array of shape (n, d) (one start per row), got shape {starts.shape}."
-        )
-    if not np.all(np.isfinite(np.asarray(starts))):
-        raise ValueError("`starts` must be finite (found NaN or inf entries).")
-    return starts
-
-
-def _check_box(lower: ArrayLike, upper: ArrayLike, dtype=None) -> tuple[Array, Array]:
-    lower, upper = as_float_array(lower), as_float_array(upper)
-    if dtype is None:
-        dtype = jnp.result_type(lower.dtype, upper.dtype)
-    # Checked on the host in numpy (no small XLA compilations).
-    lo, hi = np.asarray(lower).astype(dtype), np.asarray(upper).astype(dtype)
-    if lo.ndim != 1 or lo.shape[0] == 0 or lo.shape != hi.shape:
-        raise ValueError(
-            "`lower` and `upper` must be non-empty 1-D arrays of the same shape (d,), "
-            f"got shapes {lo.shape} and {hi.shape}."
-        )
-    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
-        raise ValueError("the box bounds `lower` and `upper` must be finite.")
-    if not np.all(lo < hi):
-        bad = np.nonzero(~(lo < hi))[0].tolist()
-        raise ValueError(
-            f"the box needs `lower < upper` in every coordinate; fails in coordinates {bad} "
-            f"(lower={lo[bad].tolist()}, upper={hi[bad].tolist()})."
-        )
-    return jnp.asarray(lo), jnp.asarray(hi)
-
-
-def _check_scalar_fn(fn, d: int, dtype, name: str) -> None:
-    if not callable(fn):
-        raise TypeError(f"`{name}` must be callable, got {type(fn).__name__}.")
-    out = jax.eval_shape(fn, jax.ShapeDtypeStruct((d,), dtype))
-    if not (isinstance(out, jax.ShapeDtypeStruct) and out.shape == () and jnp.issubdtype(out.dtype, jnp.floating)):
-        raise ValueError(f"`{name}` must map one point of shape ({d},) to a real floating scalar, got {out}.")
-
-
-def _check_max_steps(max_steps) -> int:
-    if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
-        raise ValueError(f"`max_steps` must be a positive int, got {max_steps!r}.")
-    return int(max_steps)
-
-
-# --------------------------------------------------------------------------- #
-# maximise
-# --------------------------------------------------------------------------- #
-
-
-def maximise(
-    fn: ScalarFn,
-    starts: ArrayLike,
-    *,
-    lower: ArrayLike | None = None,
-    upper: ArrayLike | None = None,
-    max_steps: int = 256,
-    solver: optx.AbstractMinimiser | None = None,
-) -> SearchResult:
-    """Maximise `fn` by local searches from many starts (optimistix BFGS).
-
-    All starts are solved in one `vmap`ped, jitted `optx.minimise` of `-fn`
-    (`throw=False`: a failed search does not raise). On a box the search runs
-    in unconstrained coordinates `z`, with `y = lower + (upper - lower) *
-    sigmoid(z)`, so every end point lies in the box (faces included, where the
-    sigmoid saturates). Each start's result is the better of its own value and
-    its end point's value, so the answer is never worse than the best start.
-    Non-finite values (NaN, `+-inf`) count as failures and are ignored.
-
-    This is a local search: it finds the global maximum only if some start
-    lies in its basin of attraction. Spread the starts widely.
-
-    Arguments:
-        fn: maps one point `(d,)` to a real scalar; differentiable with JAX.
-            Not jitted by the caller; it is jitted here (with the same `fn`,
-            solver and shapes the compilation is reused).
-        starts: starting points, shape `(n, d)`, finite (inside the box if one
-            is given).
-        lower: optional lower corner of a box to search in, shape `(d,)`.
-        upper: optional upper corner, shape `(d,)`; give both or neither.
-        max_steps: maximum number of BFGS steps per start.
-        solver: an optimistix minimiser; defaults to BFGS with
-            `rtol = atol = sqrt(machine epsilon)` of the dtype of `starts`.
-
-    Returns:
-        A `SearchResult`; its `value` is NaN when no finite value was found.
-
-    Raises:
-        ValueError: for malformed starts, box or options, or an `fn` that does
-            not return a scalar.
-        TypeError: if `fn` is not callable.
-    """
-    starts = _check_starts(starts)
-    n, d = starts.shape
-    if (lower is None) != (upper is None):
-        raise ValueError("give both `lower` and `upper` (a box), or neither.")
-    if lower is not None:
-        lower, upper = _check_box(lower, upper, starts.dtype)
-        if lower.shape != (d,):
-            raise ValueError(f"the box has dimension {lower.shape[0]} but the starts have dimension {d}.")
-        s, lo, hi = np.asarray(starts), np.asarray(lower), np.asarray(upper)
-        outside = np.any((s < lo) | (s > hi), axis=1)
-        if outside.any():
-            raise ValueError(
-                f"{int(outside.sum())} of {n} starts lie outside the box [lower, upper] "
-                f"(first: row {int(np.argmax(outside))})."
-            )
-    _check_scalar_fn(fn, d, starts.dtype, "fn")
-    max_steps = _check_max_steps(max_steps)
-    if solver is None:
-        solver = _default_solver(starts.dtype)
-    elif not isinstance(solver, optx.AbstractMinimiser):
-        raise ValueError(f"`solver` must be an optimistix AbstractMinimiser, got {type(solver).__name__}.")
-
-    return _search(fn, solver, max_steps, starts, lower, upper)[0]
-
-
-def _search(fn, solver, max_steps, starts, lower, upper) -> tuple[SearchResult, np.ndarray]:
-    """Run `_solve` and summarise; also return the raw end points, shape `(n, d)`."""
-    start_values, ends, end_values = jax.device_get(_solve(fn, solver, max_steps, starts, lower, upper))
-    result = _summarise(np.asarray(starts), start_values, ends, end_values, starts.dtype)
-    return result, np.asarray(ends)
-
-
-def _summarise(starts, start_values, ends, end_values, dtype) -> SearchResult:
-    """Per start, keep the better finite of (start, end); then the overall best (host)."""
-    start_values = np.asarray(start_values, dtype=np.float64)
-    end_values = np.asarray(end_values, dtype=np.float64)
-    ends = np.asarray(ends, dtype=np.float64)
-    starts = np.asarray(starts, dtype=np.float64)
-    end_ok = np.isfinite(end_values) & np.all(np.isfinite(ends), axis=1)
-    start_ok = np.isfinite(start_values)
-    s_val = np.where(start_ok, start_values, -np.inf)
-    e_val = np.where(end_ok, end_values, -np.inf)
-    use_end = end_ok & (e_val >= s_val)
-    values = np.where(use_end, e_val, np.where(start_ok, s_val, np.nan))
-    argmaxes = np.where(use_end[:, None], ends, starts)
-    if np.any(np.isfinite(values)):
-        i = int(np.nanargmax(values))
-        value, argmax = float(values[i]), argmaxes[i]
-    else:
-        value, argmax = math.nan, np.full(starts.shape[1], np.nan)
-    return SearchResult(
-        value=value,
-        argmax=jnp.asarray(argmax, dtype),
-        values=jnp.asarray(values, dtype),
-        argmaxes=jnp.asarray(argmaxes, dtype),
-        num_failed=int(np.sum(~end_ok)),
-        start_values=jnp.asarray(start_values, dtype),
-        end_values=jnp.asarray(end_values, dtype),
-    )
 
 
 # --------------------------------------------------------------------------- #
@@ -387,33 +154,33 @@ def minimal_log_rate(
             `c_tilde` keeps `gamma >= 0`.
         TypeError: if one of the functions is not callable.
     """
-    starts = _check_starts(starts)
+    starts = check_starts(starts)
     d = starts.shape[1]
     for fn, name in (
         (logdensity, "logdensity"),
         (adjoint_ratio, "adjoint_ratio"),
         (log_reference, "log_reference"),
     ):
-        _check_scalar_fn(fn, d, starts.dtype, name)
+        check_scalar_fn(fn, d, starts.dtype, name)
     margin = float(margin)
     if not (math.isfinite(margin) and margin >= 0):
         raise ValueError(f"`margin` must be finite and >= 0, got {margin}.")
-    max_steps = _check_max_steps(max_steps)
-    solver = _default_solver(starts.dtype)
+    max_steps = check_integer(max_steps, "max_steps")
+    solver = default_solver(starts.dtype)
 
     def objective(log_phase: bool) -> _RateObjective:
         return _RateObjective(logdensity, adjoint_ratio, log_reference, jnp.asarray(log_phase))
 
     # Phase 1: move the starts with a >= 0 into {a < 0}, where possible. Starts
     # with a <= 0 (phase-1 value 0) stay where they are.
-    values1, ends1, _ = jax.device_get(_solve(objective(False), solver, max_steps, starts, None, None))
+    values1, ends1, _ = jax.device_get(solve(objective(False), solver, max_steps, starts, None, None))
     s = np.asarray(starts)
     stay = np.asarray(values1) == 0
     ends1 = np.asarray(ends1)
     move = ~stay & np.all(np.isfinite(ends1), axis=1)
     entries = jnp.asarray(np.where(move[:, None], ends1, s), starts.dtype)
     # Phase 2: maximise the log objective from the starts in {a < 0} and the entry points.
-    start_values, ends, end_values = jax.device_get(_solve(objective(True), solver, max_steps, entries, None, None))
+    start_values, ends, end_values = jax.device_get(solve(objective(True), solver, max_steps, entries, None, None))
     start_values = np.asarray(start_values, dtype=np.float64)
     end_values = np.asarray(end_values, dtype=np.float64)
     ends = np.asarray(ends, dtype=np.float64)
@@ -496,10 +263,9 @@ def rate_bound(
             target density vanishes): choose a smaller region.
         TypeError: if `kill_rate` is not callable.
     """
-    lower, upper = _check_box(lower, upper)
+    lower, upper = check_box(lower, upper)
     d = lower.shape[0]
-    if isinstance(num_starts, bool) or not isinstance(num_starts, (int, np.integer)) or num_starts < 0:
-        raise ValueError(f"`num_starts` must be an int >= 0, got {num_starts!r}.")
+    num_starts = check_integer(num_starts, "num_starts", minimum=0)
     safety = float(safety)
     if not (math.isfinite(safety) and safety >= 1):
         raise ValueError(f"`safety` must be finite and >= 1, got {safety}.")
@@ -507,10 +273,10 @@ def rate_bound(
     lo, hi = np.asarray(lower), np.asarray(upper)
     starts = np.concatenate([lo + (hi - lo) * draws, (0.5 * (lo + hi))[None]])
     starts = jnp.asarray(np.clip(starts, lo, hi))
-    max_steps = _check_max_steps(max_steps)
-    _check_scalar_fn(kill_rate, d, starts.dtype, "kill_rate")
-    solver = _default_solver(starts.dtype)
-    result, ends = _search(kill_rate, solver, max_steps, starts, lower, upper)
+    max_steps = check_integer(max_steps, "max_steps")
+    check_scalar_fn(kill_rate, d, starts.dtype, "kill_rate")
+    solver = default_solver(starts.dtype)
+    result, ends = search(kill_rate, solver, max_steps, starts, lower, upper)
 
     # The rate must be finite at every point of the box that was evaluated; an end
     # point that is itself non-finite is an optimiser failure, not a property of the rate.

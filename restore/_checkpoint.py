@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import math
 import os
 import zipfile
 from pathlib import Path
@@ -36,17 +35,6 @@ def _is_key(x) -> bool:
 
 def _to_numpy(x) -> np.ndarray:
     return np.asarray(jax.random.key_data(x) if _is_key(x) else x)
-
-
-def check_interval(seconds, name: str = "checkpoint_seconds") -> float | None:
-    """A time between checkpoints: a positive, finite number of seconds, or `None` (no timed saves)."""
-    if seconds is None:
-        return None
-    if isinstance(seconds, bool) or not isinstance(seconds, (int, float, np.integer, np.floating)) or not (
-        math.isfinite(seconds) and seconds > 0
-    ):
-        raise ValueError(f"{name} must be a positive number or None, got {seconds!r}")
-    return float(seconds)
 
 
 def key_fingerprint(key) -> list[int]:

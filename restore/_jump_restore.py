@@ -6,8 +6,9 @@ from collections.abc import Callable
 
 from jaxtyping import Array
 
+from ._parts import check_parts
 from ._restore import AbstractRestore, RestoreState
-from ._validation import check_parts
+from ._validation import check_positive
 from .dynamics import Jump
 from .local import AbstractLocalKernel
 from .regeneration import AbstractRegeneration
@@ -66,9 +67,7 @@ class JumpRestore(AbstractRestore):
     ):
         check_parts(logdensity, local, regeneration)
         if log_rate is not None and getattr(log_rate, "ndim", 0) != 0:
-            raise ValueError(f"log_rate must be a scalar, got shape {log_rate.shape}")
-        from ._rate import check_positive
-
+            raise ValueError(f"log_rate must be a scalar, got shape {log_rate.shape}")  # type: ignore[attr-defined]
         if local_rate is None:
             raise TypeError("local_rate must be a positive number (the rate r of local moves), got None")
         dynamics = Jump(local, check_positive(local_rate, "local_rate"))
@@ -76,7 +75,7 @@ class JumpRestore(AbstractRestore):
 
     @property
     def local(self) -> AbstractLocalKernel:
-        return self.dynamics[0].kernel
+        return self.dynamics[0].kernel  # type: ignore[attr-defined]
 
     @property
     def regeneration(self) -> AbstractRegeneration:
@@ -84,4 +83,4 @@ class JumpRestore(AbstractRestore):
 
     @property
     def local_rate(self) -> float:
-        return self.dynamics[0].rate
+        return self.dynamics[0].rate  # type: ignore[attr-defined]

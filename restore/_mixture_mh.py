@@ -9,9 +9,10 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, PRNGKeyArray
 
+from ._parts import check_parts
 from ._point import Point, evaluate
 from ._sampler import AbstractSampler, StepInfo
-from ._validation import check_parts, check_position
+from ._validation import check_point
 from .local import AbstractLocalKernel
 from .local._base import metropolis_accept
 from .regeneration import AbstractRegeneration
@@ -81,7 +82,7 @@ class MixtureMH(AbstractSampler):
         if position is None:
             position = self.regeneration.sample(key)
         else:
-            position = check_position(position, self.dim)
+            position = check_point(position, self.dim, "position", finite=True)
         position = position.astype(self.dtype)
         point, _ = evaluate(self.logdensity, position, self.local.uses_gradient)
         log_u = self.regeneration.log_prob(position).astype(position.dtype)

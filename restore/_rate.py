@@ -10,7 +10,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float, PRNGKeyArray
+from jaxtyping import Array, PRNGKeyArray
 
 
 def log_kill_rate(log_rate: Array, log_regeneration: Array, logdensity: Array) -> Array:
@@ -92,41 +92,6 @@ def pilot_log_z(
         num_draws=num_draws,
         zero_fraction=float(1.0 - finite.mean()),
     )
-
-
-def check_positive(value: float | None, name: str) -> float | None:
-    """Reject non-positive, NaN or infinite rates and lengths with a clear message.
-
-    The value must be one real number (a Python or NumPy scalar, or a 0-d array); booleans,
-    strings and arrays with more than one entry are refused with a message naming `name`.
-    """
-    if value is None:
-        return None
-    if isinstance(value, (bool, np.bool_, str, bytes)):
-        raise TypeError(f"{name} must be a positive number, got {value!r}")
-    try:
-        arr = np.asarray(value)
-    except Exception as err:  # e.g. a traced value: these are static settings
-        raise TypeError(f"{name} must be a concrete positive number, got {type(value).__name__}") from err
-    if arr.dtype.kind not in "iuf":
-        raise TypeError(f"{name} must be a positive number, got {value!r}")
-    if arr.ndim != 0:
-        raise ValueError(f"{name} must be a scalar, got shape {arr.shape}")
-    value = float(arr)
-    if not math.isfinite(value) or value <= 0:
-        raise ValueError(f"{name} must be positive and finite, got {value!r}")
-    return value
-
-
-def check_finite(value: float | None, name: str) -> Float[Array, ""] | None:
-    if value is None:
-        return None
-    arr = jnp.asarray(value)
-    if arr.ndim != 0:
-        raise ValueError(f"{name} must be a scalar, got shape {arr.shape}")
-    if not isinstance(arr, jax.core.Tracer) and not bool(jnp.isfinite(arr)):
-        raise ValueError(f"{name} must be finite, got {value!r}")
-    return arr
 
 
 def log_total_kill_rate(log_transfer_rate: Array, adjoint_ratio: Array) -> tuple[Array, Array]:

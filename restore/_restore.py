@@ -21,7 +21,6 @@ from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 from ._point import Point, evaluate
 from ._rate import (
     PilotEstimate,
-    check_positive,
     kill_log_probability,
     log_kill_rate,
     log_total_kill_rate,
@@ -29,7 +28,7 @@ from ._rate import (
     pilot_log_z,
 )
 from ._sampler import AbstractSampler, RunFacts, StepInfo
-from ._validation import check_integer, check_logdensity, check_position
+from ._validation import check_integer, check_logdensity, check_point, check_positive
 from .dynamics import AbstractDiffusion, AbstractDynamics, AbstractJumpDynamics
 from .transfer import AbstractTransfer
 
@@ -206,7 +205,7 @@ class AbstractRestore(AbstractSampler):
         With another phase rule the tours' own phases count (`expected_tour_times`)."""
         if self.log_rate is None:
             return None
-        rates = jnp.atleast_1d(jnp.asarray(self.log_rate, jnp.float64 if jax.config.jax_enable_x64 else jnp.float32))
+        rates = jnp.atleast_1d(jnp.asarray(self.log_rate, jnp.float64 if jax.config.jax_enable_x64 else jnp.float32))  # type: ignore[attr-defined]
         return float(-(jax.nn.logsumexp(-rates) - math.log(rates.shape[0])))
 
     def phase_of_tour(self, tour: Int[Array, "*n"]) -> Int[Array, "*n"]:
@@ -255,7 +254,7 @@ class AbstractRestore(AbstractSampler):
             return self, None
         pilot = pilot_log_z(key, self.logdensity, self.transfers[0].reference, self.pilot_size)
         lengths = np.asarray(self.tour_length, np.float64)
-        rates = jnp.asarray(pilot.log_z - np.log(lengths), self.tour_length.dtype)
+        rates = jnp.asarray(pilot.log_z - np.log(lengths), self.tour_length.dtype)  # type: ignore[union-attr]
         rates = rates[0] if self.num_phases == 1 else rates
         return eqx.tree_at(lambda s: s.log_rate, self, rates, is_leaf=lambda x: x is None), pilot
 
@@ -313,7 +312,7 @@ class AbstractRestore(AbstractSampler):
         if position is None:
             position = self._by_phase(phase, lambda k: self.transfers[k].reference.sample(key).astype(self.dtype))
         else:
-            position = check_position(position, self.dim)
+            position = check_point(position, self.dim, "position", finite=True)
         position = position.astype(self.dtype)
         point, invalid = evaluate(self.logdensity, position, self.uses_gradient)
         point, _, _, log_kill, adjoint = self._terms(phase, point, invalid, log_rates)
@@ -329,7 +328,7 @@ class AbstractRestore(AbstractSampler):
         return jax.lax.switch(state.phase, [lambda k=k: fn(k, key, state, log_rates) for k in range(self.num_phases)])
 
     def _jump_step(self, k: int, key: PRNGKeyArray, state: RestoreState, log_rates: Array):
-        dynamics: AbstractJumpDynamics = self.dynamics[k]  # type: ignore[assignment]
+        dynamics: AbstractJumpDynamics = self.dynamics[k]
         k_event, k_hold, k_propose, k_accept, k_regen = jax.random.split(key, 5)
         dtype = state.logdensity.dtype
         log_r = jnp.log(jnp.asarray(dynamics.rate, dtype))
@@ -381,7 +380,7 @@ class AbstractRestore(AbstractSampler):
         return new_state, info
 
     def _diffusion_step(self, k: int, key: PRNGKeyArray, state: RestoreState, log_rates: Array):
-        dynamics: AbstractDiffusion = self.dynamics[k]  # type: ignore[assignment]
+        dynamics: AbstractDiffusion = self.dynamics[k]
         k_gap, k_move, k_kill = jax.random.split(key, 3)
         dtype = state.logdensity.dtype
         bound = jnp.asarray(self.bound[k], dtype)
@@ -432,7 +431,7 @@ class AbstractRestore(AbstractSampler):
         `restore.rate_bound(process.kill_rate, lower, upper, key=key).bound`.
         """
         log_rates = self._require_rate()
-        position = check_position(position, self.dim).astype(self.dtype)
+        position = check_point(position, self.dim, "position", finite=True).astype(self.dtype)
         point, invalid = evaluate(self.logdensity, position, self.uses_gradient)
         phase = jnp.asarray(phase, jnp.int32)
         _, _, _, log_kill, adjoint = self._terms(phase, point, invalid, log_rates)
@@ -446,7 +445,7 @@ class AbstractRestore(AbstractSampler):
         """
         if not self.is_diffusion:
             return state.position
-        return self._by_phase(state.phase, lambda k: self.dynamics[k].advance(key, state.position, duration, self.logdensity))
+        return self._by_phase(state.phase, lambda k: self.dynamics[k].advance(key, state.position, duration, self.logdensity))  # type: ignore[attr-defined]
 
 
 class Restore(AbstractRestore):

@@ -172,7 +172,7 @@ class SampleResult:
             est = est._replace(k_hat=k_hat, k_limit=k_hat_limit(n), caveat=self._open_tours_caveat(lanes))
         else:
             est = lane_ratio(pick(s.all_f)[:, cut], pick(s.all_t))
-        shaped = Estimate(*(np.reshape(a, slot.shape) for a in est[:3]), est.k_limit, est.caveat)
+        shaped = Estimate(*(np.reshape(a, slot.shape) for a in est[:3]), est.k_limit, est.caveat)  # type: ignore[call-arg]
         _warn_unreliable(f"the estimate of {name!r}", shaped)
         return shaped
 

@@ -31,7 +31,6 @@ from ._accumulators import (
 from ._checkpoint import (
     CheckpointError,
     array_digest,
-    check_interval,
     key_fingerprint,
     load_checkpoint,
     read_header,
@@ -54,7 +53,7 @@ from ._sharding import (
 )
 from ._tails import TourTails, init_tails, keep_largest, tail_depth
 from ._tour_records import TourRecords, emptied, has_room, init_records, record, records_per_lane
-from ._validation import check_integer
+from ._validation import check_integer, check_interval
 
 Weights = Literal["rao_blackwell", "time"]
 

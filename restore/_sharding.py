@@ -10,7 +10,7 @@ replicated. The jitted loop is partitioned by XLA; the per-lane work runs under
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any, Literal, NamedTuple, Union
+from typing import Any, Literal, NamedTuple
 
 import equinox as eqx
 import jax
@@ -18,7 +18,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 #: What `restore.sample(devices=...)` accepts.
-Devices = Union[int, Literal["all"], Sequence[jax.Device], Mesh, None]
+Devices = int | Literal["all"] | Sequence[jax.Device] | Mesh | None
 
 AXIS = "lanes"
 _EXPECTED = "devices must be None, 'all', an int, a sequence of devices or a Mesh"

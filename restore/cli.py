@@ -59,7 +59,7 @@ def demo(
     table.add_row("RMSE", "", f"{rmse(outcome.restore):.4f}", "", f"{rmse(outcome.mh):.4f}", "", end_section=True)
     table.add_row("wall time (with compilation)", "", f"{outcome.restore_seconds:.1f} s", "", f"{outcome.mh_seconds:.1f} s", "")
     console.print(table)
-    stats = outcome.restore_result.tour_statistics()
+    stats = outcome.restore_result.tour_statistics()  # type: ignore[attr-defined]
     console.print(
         f"jump Restore: {stats.num_tours:,} tours, mean duration {stats.mean_duration:.2f} ± {stats.mean_duration_se:.2f} "
         f"(1/c = {stats.expected_duration:.2f}); log Z = {float(outcome.log_z.value):.4f} ± {float(outcome.log_z.standard_error):.4f} "

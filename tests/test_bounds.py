@@ -10,7 +10,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from restore._bounds import MinimalRate, RateBound, SearchResult, maximise, minimal_log_rate, rate_bound
+from restore._bounds import MinimalRate, RateBound, minimal_log_rate, rate_bound
+from restore._multistart import SearchResult, maximise
 
 # --------------------------------------------------------------------------- #
 # Brownian-motion Restore: a = 1/2 (|grad log p|^2 + Laplacian log p)

@@ -1,7 +1,6 @@
 """Checks 2 and 3 of the validation protocol: ergodicity and calibrated standard errors."""
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 import restore
@@ -12,8 +11,8 @@ from ._models import (
     banana,
     broad_regeneration,
     laplace_regeneration,
-    mixture_10d,
     mixture_2d,
+    mixture_10d,
     mode_indicator,
     second_moments,
 )

@@ -21,9 +21,9 @@ import math
 import os
 import re
 import warnings
-from typing import ClassVar
 from pathlib import Path
 from types import SimpleNamespace
+from typing import ClassVar
 
 import equinox as eqx
 import jax
@@ -452,7 +452,7 @@ def run(sampler, key=KEY, **kwargs):
 
 def assert_estimates_finite_or_refused(result):
     for method in ("tours", "lanes"):
-        est, error = outcome(lambda: result.estimate("x", method=method))
+        est, error = outcome(lambda: result.estimate("x", method=method))  # noqa: B023
         if error is not None:
             assert isinstance(error, ValueError) and re.search(EXPECTED_ESTIMATE_ERRORS, str(error)), error
         else:

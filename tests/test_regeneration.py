@@ -1,6 +1,5 @@
 import jax
 
-
 jax.config.update("jax_enable_x64", True)
 
 import functools  # noqa: E402
@@ -14,17 +13,16 @@ from jax.scipy.special import logsumexp  # noqa: E402
 
 from restore.regeneration import (  # noqa: E402
     AbstractRegeneration,
-    find_modes,
     Gaussian,
-    laplace_mixture,
     LaplaceModes,
     Mixture,
-    mixture_from_modes,
     StudentT,
     UniformBox,
     UniformTorus,
+    find_modes,
+    laplace_mixture,
+    mixture_from_modes,
 )
-
 
 KEY = jax.random.key(20240611)
 PVAL = 1e-3
@@ -306,9 +304,11 @@ def test_uniform_torus():
     assert np.all((x >= 0) & (x < 1))
     for i in range(3):
         assert st.kstest(x[:, i], st.uniform().cdf).pvalue > PVAL
-    for bad_dim in (0, -1, 2.5, True):
+    for bad_dim in (0, -1, 2.5):
         with pytest.raises(ValueError, match="positive int"):
             UniformTorus(bad_dim)
+    with pytest.raises(TypeError, match="positive int"):  # a boolean is not a count
+        UniformTorus(True)
 
 
 # -------------------------------------------------------------------- Mixture
@@ -601,9 +601,9 @@ def test_laplace_errors(starts_2d, modes_2d):
         find_modes(logdensity_2d, starts_2d, merge_tol=-1.0)
     with pytest.raises(ValueError, match="max_steps"):
         find_modes(logdensity_2d, starts_2d, max_steps=0)
-    with pytest.raises(ValueError, match="solver"):
+    with pytest.raises(TypeError, match="solver"):
         find_modes(logdensity_2d, starts_2d, solver="bfgs")
-    with pytest.raises(ValueError, match="LaplaceModes"):
+    with pytest.raises(TypeError, match="LaplaceModes"):
         mixture_from_modes(np.zeros((3, 2)))
     for kwargs, match in [
         ({"tails": "cauchy"}, "tails"),

@@ -313,7 +313,7 @@ BAD = {
     "mh-scale-matrix": (lambda: MetropolisTransfer(Gaussian(MEAN), jnp.eye(3)), ValueError, "scalar or a vector"),
     "mh-steps=0": (lambda: MetropolisTransfer(Gaussian(MEAN), 1.0, 0), ValueError, "num_steps"),
     "mh-steps-float": (lambda: MetropolisTransfer(Gaussian(MEAN), 1.0, 2.5), ValueError, "num_steps"),
-    "mh-steps-bool": (lambda: MetropolisTransfer(Gaussian(MEAN), 1.0, True), ValueError, "num_steps"),
+    "mh-steps-bool": (lambda: MetropolisTransfer(Gaussian(MEAN), 1.0, True), TypeError, "num_steps"),
     "mh-not-a-distribution": (lambda: MetropolisTransfer(lambda x: -x @ x, 1.0), TypeError, "regeneration"),
     "wrapped-scale=0": (lambda: WrappedGaussianJump(0.0, 2), ValueError, "positive"),
     "wrapped-scale<0": (lambda: WrappedGaussianJump(-0.1, 2), ValueError, "positive"),

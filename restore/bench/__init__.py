@@ -29,10 +29,10 @@ from ._evidence_runner import CountedDensity as CountedDensity
 from ._evidence_runner import EvidenceOutput as EvidenceOutput
 from ._evidence_runner import EvidenceRunner as EvidenceRunner
 from ._exact_runner import ExactRunner as ExactRunner
-from ._metrics import median_bandwidth as median_bandwidth
-from ._metrics import mmd as mmd
 from ._metrics import pooled_rms as pooled_rms
 from ._metrics import score as score
+from ._mmd import median_bandwidth as median_bandwidth
+from ._mmd import mmd as mmd
 from ._nested_runner import DynestyRunner as DynestyRunner
 from ._plots import plot_curves as plot_curves
 from ._plots import plot_ratios as plot_ratios

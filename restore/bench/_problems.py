@@ -12,6 +12,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, PRNGKeyArray
 
+from ._mmd import median_bandwidth
+
 
 class Reference(NamedTuple):
     """Exact answers a sampler's output is compared against (numpy, float64)."""
@@ -109,8 +111,6 @@ class Problem(BuiltTarget):
         cov = np.asarray(t.covariance, np.float64)
         mean = np.asarray(t.mean, np.float64)
         draws = np.asarray(t.sample(key, int(num_draws)), np.float64)
-        from ._metrics import median_bandwidth
-
         return Reference(
             mode_weights=np.asarray(t.weights, np.float64) if self.multimodal else None,
             mean=mean,

@@ -55,14 +55,14 @@ def machine_description() -> dict[str, str]:
     """CPU, cores, load, library versions and the date: what the timings depend on."""
     load = os.getloadavg() if hasattr(os, "getloadavg") else (math.nan,) * 3
     return {
-        "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+        "date": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC"),
         "cpu": _cpu_name(),
         "cores": str(os.cpu_count()),
         "cores this process may use": _affinity(),
         "load average at start (1, 5, 15 min)": ", ".join(f"{x:.2f}" for x in load),
         "platform": platform.platform(),
         "python": platform.python_version(),
-        "jax": f"{jax.__version__} ({jax.default_backend()}, {jax.device_count()} device(s), float64={jax.config.jax_enable_x64})",
+        "jax": f"{jax.__version__} ({jax.default_backend()}, {jax.device_count()} device(s), float64={jax.config.jax_enable_x64})",  # type: ignore[attr-defined]
         "numpy": np.__version__,
         "emcee": _version("emcee"),
         "blackjax": _version("blackjax"),
@@ -96,7 +96,7 @@ def summary_rows(rows: list[dict]) -> list[dict]:
             groups.setdefault((r["problem"], r["sampler"], r["budget"]), []).append(r)
     out = []
     for (problem, sampler, budget), rs in groups.items():
-        med = lambda k: float(np.nanmedian([r[k] for r in rs])) if any(math.isfinite(r[k]) for r in rs) else math.nan  # noqa: E731
+        med = lambda k: float(np.nanmedian([r[k] for r in rs])) if any(math.isfinite(r[k]) for r in rs) else math.nan  # noqa: B023, E731
         notes = sorted({n for r in rs for n in r["notes"].split("; ") if n})
         out.append({
             "problem": problem, "sampler": sampler, "budget": budget, "seeds": len(rs),

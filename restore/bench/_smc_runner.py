@@ -110,7 +110,7 @@ class TemperedSMCRunner(EvidenceRunner):
                 )
 
             def going(c: _Loop) -> Array:
-                return (c.state.tempering_param < 1.0) & (c.temperatures < cap)
+                return (c.state.tempering_param < 1.0) & (c.temperatures < cap)  # type: ignore[attr-defined]
 
             variance = jnp.var(particles, axis=0)
             init = _Loop(

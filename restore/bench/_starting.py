@@ -30,7 +30,7 @@ class StartingInformation(NamedTuple):
     def initial_points(self, key: PRNGKeyArray, n: int) -> np.ndarray:
         """`n` independent draws of the regeneration distribution, as numpy (n, d)."""
         keys = jax.random.split(key, int(n))
-        return np.asarray(jax.vmap(self.regeneration.sample)(keys), np.float64)
+        return np.asarray(jax.vmap(self.regeneration.sample)(keys), np.float64)  # type: ignore[attr-defined]
 
 
 def starting_information(problem: Problem, key: PRNGKeyArray) -> StartingInformation:

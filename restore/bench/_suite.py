@@ -138,7 +138,7 @@ def _run_all(config: SuiteConfig, rows: list[dict], raw_rates: dict[str, float],
                         amount = ref_run.evaluations if ref_run is not None else f * config.full_evaluations
                         budgets.append(Budget.evaluations(amount, f))
                     if runner.time_budget and (runner.matches, 1.0) in used:
-                        budgets.append(Budget.seconds(used[(runner.matches, 1.0)].run_time, 1.0))
+                        budgets.append(Budget.seconds(used[(runner.matches, 1.0)].run_time, 1.0))  # type: ignore[index]
                     for budget in budgets:
                         describe(f"{name} seed {seed}: {runner.name} ({budget.kind} x{budget.fraction:g})")
                         out = runner.run(problem, start, _key(config, name, seed, runner.name, budget.kind, budget.fraction), budget)

@@ -11,6 +11,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float, PRNGKeyArray
 
 from .._point import Point
+from .._validation import check_positive
 from ..local import AbstractLocalKernel, LocalInfo
 
 
@@ -101,8 +102,6 @@ class Jump(AbstractJumpDynamics):
     def __init__(self, kernel: AbstractLocalKernel, rate: float = 1.0):
         if not isinstance(kernel, AbstractLocalKernel):
             raise TypeError(f"kernel must be a restore.local kernel, got {type(kernel).__name__}")
-        from .._rate import check_positive
-
         if rate is None:
             raise TypeError("rate must be a positive number, got None")
         self.kernel = kernel

@@ -11,7 +11,7 @@ import numpy as np
 from jaxtyping import Array, Float, PRNGKeyArray
 
 from .._point import Point
-from ..local._base import as_scale
+from .._validation import as_float_array, as_scale
 from ._base import AbstractDiffusion
 
 
@@ -54,14 +54,7 @@ def check_diffusion_matrix(value: Any, name: str = "diffusion_matrix") -> Float[
     A matrix must be finite, symmetric and positive definite (checked with a Cholesky
     factorisation when its values are concrete).
     """
-    try:
-        arr = jnp.asarray(value)
-    except (TypeError, ValueError) as err:
-        raise ValueError(
-            f"{name} must be a scalar, a vector (d,) or a matrix (d, d); got {type(value).__name__}"
-        ) from err
-    if not jnp.issubdtype(arr.dtype, jnp.floating):
-        arr = arr.astype(jnp.result_type(float))
+    arr = as_float_array(value, name)
     if arr.ndim <= 1:
         return as_scale(arr, name)
     if arr.ndim != 2 or arr.shape[0] != arr.shape[1]:

@@ -9,7 +9,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float, PRNGKeyArray
 
 from .._point import Point
-from ..local._base import as_scale, check_vector_dim
+from .._validation import as_scale, check_vector_dim
 from ._base import AbstractDiffusion
 from ._diffusion import as_step_size, euler_maruyama
 

@@ -10,19 +10,14 @@ import numpy as np
 from jaxtyping import Array, Float, PRNGKeyArray
 
 from .._point import Point
-from ..local._base import as_scale, check_vector_dim
+from .._validation import as_float_array, as_scale, check_vector_dim
 from ._base import AbstractDiffusion
 from ._diffusion import log_derivatives, sanitize_ratio, second_order_term
 
 
 def _check_mean(value, name: str) -> Array:
     """A finite scalar or vector `(d,)`, kept as a float array."""
-    try:
-        arr = jnp.asarray(value)
-    except (TypeError, ValueError) as err:
-        raise ValueError(f"{name} must be a scalar or a vector of shape (d,), got {type(value).__name__}") from err
-    if not jnp.issubdtype(arr.dtype, jnp.floating):
-        arr = arr.astype(jnp.result_type(float))
+    arr = as_float_array(value, name)
     if arr.ndim > 1:
         raise ValueError(f"{name} must be a scalar or a vector of shape (d,), got shape {arr.shape}")
     if not isinstance(arr, jax.core.Tracer) and not np.all(np.isfinite(np.asarray(arr))):

@@ -10,9 +10,8 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float, PRNGKeyArray
 
 from .._point import Point
-from .._rate import check_positive
+from .._validation import as_scale, check_positive, check_vector_dim
 from ..local import LocalInfo
-from ..local._base import as_scale, check_vector_dim
 from ._base import AbstractJumpDynamics
 from ._diffusion import sanitize_ratio
 

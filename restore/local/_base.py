@@ -64,26 +64,3 @@ def metropolis_accept(
     accepted = jnp.log(jax.random.uniform(key, dtype=point.logdensity.dtype)) < log_alpha
     chosen = jax.tree.map(lambda c, p: jnp.where(accepted, c, p), candidate, point)
     return chosen, LocalInfo(accepted, jnp.exp(log_alpha))
-
-
-def as_scale(value: Any, name: str) -> Array:
-    """Check a step-size-like argument: positive and finite, scalar or a vector."""
-    try:
-        arr = jnp.asarray(value)
-    except (TypeError, ValueError) as err:
-        raise TypeError(f"{name} must be a positive number or a vector of them, got {value!r}") from err
-    if arr.dtype == bool or not (jnp.issubdtype(arr.dtype, jnp.floating) or jnp.issubdtype(arr.dtype, jnp.integer)):
-        raise TypeError(f"{name} must be a positive number or a vector of them, got dtype {arr.dtype}")
-    if not jnp.issubdtype(arr.dtype, jnp.floating):
-        arr = arr.astype(float)
-    if arr.ndim > 1:
-        raise ValueError(f"{name} must be a scalar or a vector of shape (d,), got shape {arr.shape}")
-    if not isinstance(arr, jax.core.Tracer) and not bool(jnp.all(jnp.isfinite(arr) & (arr > 0))):
-        raise ValueError(f"{name} must be positive and finite, got {value!r}")
-    return arr
-
-
-def check_vector_dim(arr: Array, dim: int, name: str) -> None:
-    """Raise if a per-coordinate parameter has the wrong length."""
-    if arr.ndim == 1 and arr.shape[0] != dim:
-        raise ValueError(f"{name} has length {arr.shape[0]} but the target has dimension {dim}")

@@ -10,8 +10,8 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float, PRNGKeyArray
 
 from .._point import Point, evaluate
-from .._validation import check_integer
-from ._base import AbstractLocalKernel, LocalInfo, as_scale, check_vector_dim, metropolis_accept
+from .._validation import as_scale, check_integer, check_vector_dim
+from ._base import AbstractLocalKernel, LocalInfo, metropolis_accept
 
 
 class _Trajectory(NamedTuple):

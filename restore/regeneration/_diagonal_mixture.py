@@ -12,8 +12,8 @@ import numpy as np
 from jax.scipy.special import gammaln
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
+from .._validation import as_float_array, check_point, check_shape
 from ._base import AbstractRegeneration
-from ._utils import as_float_array, as_shape, check_point
 
 
 def _positive_weights(weights: ArrayLike, shape: tuple[int, ...], name: str) -> np.ndarray:
@@ -95,7 +95,7 @@ class DiagonalMixture(AbstractRegeneration):
 
     def component_log_probs(self, x: Float[Array, " d"]) -> Float[Array, " K"]:
         """`log p_k(x)` of every component at one point (no weights)."""
-        x = check_point(x, self.dim)
+        x = check_point(x, self.dim, "x")
         z2 = jnp.sum(((x - self.means) / self.scales) ** 2, axis=1)
         log_det = jnp.sum(jnp.log(self.scales), axis=1)
         d = self.dim
@@ -109,7 +109,7 @@ class DiagonalMixture(AbstractRegeneration):
         return jax.scipy.special.logsumexp(self.log_weights + self.component_log_probs(x))
 
     def sample(self, key: PRNGKeyArray, shape: tuple[int, ...] = ()) -> Float[Array, "*shape d"]:
-        shape = as_shape(shape)
+        shape = check_shape(shape)
         k_idx, k_z, k_w = jax.random.split(key, 3)
         idx = jax.random.categorical(k_idx, self.log_weights, shape=shape)
         z = jax.random.normal(k_z, shape + (self.dim,), dtype=self.means.dtype)

@@ -10,8 +10,10 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
+from .._linalg import half_log_det, mahalanobis_sq
+from .._validation import check_point, check_shape, check_vector
 from ._base import AbstractRegeneration
-from ._utils import as_shape, check_point, half_log_det, mahalanobis_sq, scale_tril, vector
+from ._utils import scale_tril
 
 
 @final
@@ -42,7 +44,7 @@ class Gaussian(AbstractRegeneration):
             ValueError: for a mean that is not 1-D, a covariance of the wrong
                 shape, or one that is not positive definite.
         """
-        mean = vector(mean, "mean")
+        mean = check_vector(mean, "mean")
         self.dim = mean.shape[0]
         tril = scale_tril(cov, self.dim, "cov")
         dtype = jnp.result_type(mean.dtype, tril.dtype)
@@ -63,13 +65,13 @@ class Gaussian(AbstractRegeneration):
             key: a JAX PRNG key.
             shape: batch shape; the result has shape `(*shape, d)`.
         """
-        shape = as_shape(shape)
+        shape = check_shape(shape)
         z = jax.random.normal(key, shape + (self.dim,), dtype=self.mean.dtype)
         return self.mean + z @ self.scale_tril.T
 
     def log_prob(self, x: Float[Array, " d"]) -> Float[Array, ""]:
         """Normalised log density of one point `x` of shape `(d,)`."""
-        x = check_point(x, self.dim)
+        x = check_point(x, self.dim, "x")
         maha = mahalanobis_sq(self.scale_tril, x - self.mean)
         return (
             -0.5 * maha

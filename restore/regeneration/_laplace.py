@@ -14,10 +14,11 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, ArrayLike, Float, Int
 
+from .._multistart import check_solver, check_starts, solve
+from .._validation import check_integer, check_scalar_fn
 from ._gaussian import Gaussian
 from ._mixture import Mixture
 from ._student_t import StudentT
-from ._utils import as_float_array
 
 # A converged optimum must satisfy sqrt(g^T Sigma g) < this, i.e. the remaining
 # Newton step is below this many posterior standard deviations.
@@ -64,25 +65,6 @@ class LaplaceModes(eqx.Module):
         _, logdet = np.linalg.slogdet(np.asarray(self.covariances, dtype=np.float64))
         logp = np.asarray(self.log_densities, dtype=np.float64)
         return logp + 0.5 * (logdet + d * math.log(2 * math.pi))
-
-
-def _default_solver(dtype) -> optx.AbstractMinimiser:
-    tol = float(np.sqrt(np.finfo(dtype).eps))
-    return optx.BFGS(rtol=tol, atol=tol)
-
-
-# Module-level and filter-jitted so that repeated calls with the same
-# `logdensity` (and solver, max_steps, shapes) reuse the compilation.
-@eqx.filter_jit
-def _optimise(logdensity, solver, max_steps, starts):
-    def objective(y, args):
-        return -logdensity(y)
-
-    def one(y0):
-        sol = optx.minimise(objective, solver, y0, max_steps=max_steps, throw=False)
-        return sol.value
-
-    return jax.vmap(one)(starts)
 
 
 @eqx.filter_jit
@@ -179,38 +161,22 @@ def find_modes(
         ValueError: if `starts` is not a non-empty `(n, d)` array, `logdensity`
             does not return a real scalar, the options are invalid, or no
             optimisation succeeded.
+        TypeError: if `logdensity` is not callable, `solver` is not an optimistix
+            minimiser or `max_steps` is not a number.
     """
-    starts = as_float_array(starts)
-    if starts.ndim != 2 or starts.shape[0] == 0 or starts.shape[1] == 0:
-        raise ValueError(
-            "`starts` must be a non-empty 2-D array of shape (n, d) (one start per "
-            f"row), got shape {starts.shape}."
-        )
+    # Non-finite starts are allowed: their searches fail and count in `num_failed`.
+    starts = check_starts(starts, finite=False)
     n, d = starts.shape
-    out = jax.eval_shape(logdensity, jax.ShapeDtypeStruct((d,), starts.dtype))
-    if not (
-        isinstance(out, jax.ShapeDtypeStruct)
-        and out.shape == ()
-        and jnp.issubdtype(out.dtype, jnp.floating)
-    ):
-        raise ValueError(
-            "`logdensity` must map a point of shape (d,) to a real floating scalar, "
-            f"got {out}."
-        )
+    check_scalar_fn(logdensity, d, starts.dtype, "logdensity")
     merge_tol = _DEFAULT_MERGE_TOL if merge_tol is None else float(merge_tol)
     if not (merge_tol >= 0 and math.isfinite(merge_tol)):
         raise ValueError(f"`merge_tol` must be finite and >= 0, got {merge_tol}.")
-    if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
-        raise ValueError(f"`max_steps` must be a positive int, got {max_steps!r}.")
-    if solver is None:
-        solver = _default_solver(starts.dtype)
-    elif not isinstance(solver, optx.AbstractMinimiser):
-        raise ValueError(
-            f"`solver` must be an optimistix AbstractMinimiser, got {type(solver).__name__}."
-        )
+    max_steps = check_integer(max_steps, "max_steps")
+    solver = check_solver(solver, starts.dtype)
 
     # Optimise, then verify (and polish with one Newton step) on the host.
-    ys = np.array(jax.device_get(_optimise(logdensity, solver, int(max_steps), starts)))
+    _, ends, _ = solve(logdensity, solver, max_steps, starts)
+    ys = np.array(jax.device_get(ends))
     ys = ys.astype(np.float64)
     expansion = _local_expansion(logdensity, jnp.asarray(ys, starts.dtype))
     ok, logps, covs, prec_chols, steps = _verify(ys, *expansion)
@@ -293,9 +259,13 @@ def mixture_from_modes(
         scale: factor multiplying the Laplace standard deviations.
         weights: `"equal"` or `"laplace"` (Laplace evidence) weights.
         defensive: optional weight in (0, 1) of an extra broad component.
+
+    Raises:
+        TypeError: if `modes` is not a `LaplaceModes`.
+        ValueError: for invalid options.
     """
     if not isinstance(modes, LaplaceModes):
-        raise ValueError(
+        raise TypeError(
             f"`modes` must be a LaplaceModes (from find_modes), got {type(modes).__name__}."
         )
     df, scale, defensive = _check_mixture_options(tails, df, scale, weights, defensive)

@@ -12,8 +12,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
+from .._validation import as_float_array, check_point, check_shape, is_concrete
 from ._base import AbstractRegeneration
-from ._utils import as_float_array, as_shape, check_point, is_concrete
 
 
 def _stack(components: tuple[AbstractRegeneration, ...]) -> AbstractRegeneration | None:
@@ -134,7 +134,7 @@ class Mixture(AbstractRegeneration):
             key: a JAX PRNG key.
             shape: batch shape; the result has shape `(*shape, d)`.
         """
-        shape = as_shape(shape)
+        shape = check_shape(shape)
         key_idx, key_draw = jax.random.split(key)
         idx = jax.random.categorical(key_idx, self.log_weights, shape=shape)
         stacked = _stack(self.components)
@@ -158,7 +158,7 @@ class Mixture(AbstractRegeneration):
 
     def component_log_probs(self, x: Float[Array, " d"]) -> Float[Array, " k"]:
         """Log densities `log p_k(x)` of every component at one point (no weights)."""
-        x = check_point(x, self.dim)
+        x = check_point(x, self.dim, "x")
         stacked = _stack(self.components)
         if stacked is not None:
             return jax.vmap(lambda c: c.log_prob(x))(stacked)

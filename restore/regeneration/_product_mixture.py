@@ -10,9 +10,9 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
+from .._validation import as_float_array, check_point, check_shape
 from ._base import AbstractRegeneration
 from ._diagonal_mixture import _positive_weights
-from ._utils import as_float_array, as_shape, check_point
 
 
 @final
@@ -57,13 +57,13 @@ class ProductMixture(AbstractRegeneration):
         self.dim = int(means.shape[0])
 
     def log_prob(self, x: Float[Array, " d"]) -> Float[Array, ""]:
-        x = check_point(x, self.dim)
+        x = check_point(x, self.dim, "x")
         z = (x[:, None] - self.means) / self.scales
         terms = self.log_weights - 0.5 * z**2 - jnp.log(self.scales) - 0.5 * math.log(2 * math.pi)
         return jnp.sum(jax.scipy.special.logsumexp(terms, axis=1))
 
     def sample(self, key: PRNGKeyArray, shape: tuple[int, ...] = ()) -> Float[Array, "*shape d"]:
-        shape = as_shape(shape)
+        shape = check_shape(shape)
         k_idx, k_z = jax.random.split(key)
         idx = jax.random.categorical(k_idx, self.log_weights, shape=shape + (self.dim,))  # (*shape, d)
         coords = jnp.arange(self.dim)

@@ -12,17 +12,10 @@ import numpy as np
 from jax.scipy.special import betaln, gammaln
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
+from .._linalg import half_log_det, mahalanobis_sq
+from .._validation import as_float_array, check_point, check_shape, check_vector, is_concrete
 from ._base import AbstractRegeneration
-from ._utils import (
-    as_float_array,
-    as_shape,
-    check_point,
-    half_log_det,
-    is_concrete,
-    mahalanobis_sq,
-    scale_tril,
-    vector,
-)
+from ._utils import scale_tril
 
 #: Integer degrees of freedom up to this use the sum-of-squares chi-square draw.
 _MAX_INTEGER_DF = 64
@@ -91,7 +84,7 @@ class StudentT(AbstractRegeneration):
             ValueError: for a location that is not 1-D, a scale of the wrong shape
                 or not positive definite, or a non-positive / non-finite `df`.
         """
-        loc = vector(loc, "loc")
+        loc = check_vector(loc, "loc")
         self.dim = loc.shape[0]
         tril = scale_tril(scale, self.dim, "scale")
         df = as_float_array(df, "df")
@@ -139,7 +132,7 @@ class StudentT(AbstractRegeneration):
             key: a JAX PRNG key.
             shape: batch shape; the result has shape `(*shape, d)`.
         """
-        shape = as_shape(shape)
+        shape = check_shape(shape)
         dtype = self.loc.dtype
         key_z, key_w = jax.random.split(key)
         z = jax.random.normal(key_z, shape + (self.dim,), dtype=dtype)
@@ -153,7 +146,7 @@ class StudentT(AbstractRegeneration):
 
     def log_prob(self, x: Float[Array, " d"]) -> Float[Array, ""]:
         """Normalised log density of one point `x` of shape `(d,)`."""
-        x = check_point(x, self.dim)
+        x = check_point(x, self.dim, "x")
         d = self.dim
         # Beyond 1/eps^2 degrees of freedom the density equals the Gaussian limit to working
         # precision; capping df keeps `maha / df` from underflowing (XLA flushes subnormals).

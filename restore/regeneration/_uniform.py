@@ -10,8 +10,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
+from .._validation import check_integer, check_point, check_shape, check_vector, is_concrete
 from ._base import AbstractRegeneration
-from ._utils import as_shape, check_point, is_concrete, vector
 
 
 @final
@@ -41,8 +41,8 @@ class UniformBox(AbstractRegeneration):
             ValueError: for shapes that are not `(d,)` or differ, non-finite
                 bounds, or `low >= high` in some coordinate.
         """
-        low = vector(low, "low")
-        high = vector(high, "high")
+        low = check_vector(low, "low")
+        high = check_vector(high, "high")
         if low.shape != high.shape:
             raise ValueError(
                 f"`low` and `high` must have the same shape, got {low.shape} and "
@@ -72,7 +72,7 @@ class UniformBox(AbstractRegeneration):
             key: a JAX PRNG key.
             shape: batch shape; the result has shape `(*shape, d)`.
         """
-        shape = as_shape(shape)
+        shape = check_shape(shape)
         return jax.random.uniform(
             key,
             shape + (self.dim,),
@@ -83,7 +83,7 @@ class UniformBox(AbstractRegeneration):
 
     def log_prob(self, x: Float[Array, " d"]) -> Float[Array, ""]:
         """`-sum(log(high - low))` inside the box, exactly `-inf` outside (also for NaN)."""
-        x = check_point(x, self.dim)
+        x = check_point(x, self.dim, "x")
         inside = jnp.all((x >= self.low) & (x <= self.high))
         value = -jnp.sum(jnp.log(self.high - self.low))
         return jnp.where(inside, value, -jnp.inf)
@@ -107,11 +107,10 @@ class UniformTorus(AbstractRegeneration):
             dim: the dimension of the torus, a positive int.
 
         Raises:
+            TypeError: if `dim` is not a number (a boolean is not).
             ValueError: if `dim` is not a positive integer.
         """
-        if isinstance(dim, bool) or not isinstance(dim, (int, np.integer)) or dim < 1:
-            raise ValueError(f"`dim` must be a positive int, got {dim!r}.")
-        self.dim = int(dim)
+        self.dim = check_integer(dim, "dim")
 
     def sample(
         self, key: PRNGKeyArray, shape: tuple[int, ...] = ()
@@ -122,11 +121,11 @@ class UniformTorus(AbstractRegeneration):
             key: a JAX PRNG key.
             shape: batch shape; the result has shape `(*shape, dim)`.
         """
-        shape = as_shape(shape)
+        shape = check_shape(shape)
         return jax.random.uniform(key, shape + (self.dim,))
 
     def log_prob(self, x: Float[Array, " d"]) -> Float[Array, ""]:
         """0 on `[0, 1)^dim`, exactly `-inf` outside (also for NaN)."""
-        x = check_point(x, self.dim)
+        x = check_point(x, self.dim, "x")
         inside = jnp.all((x >= 0) & (x < 1))
         return jnp.where(inside, jnp.zeros((), x.dtype), -jnp.inf)

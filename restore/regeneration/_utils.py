@@ -1,72 +1,14 @@
-"""Private helpers: dtype handling, input validation and covariance parsing."""
+"""Covariance parsing for the regeneration distributions."""
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-
-def as_float_array(x: ArrayLike, name: str | None = None) -> Array:
-    """Convert to a JAX array of a floating dtype.
-
-    Floating inputs keep their dtype; integer/bool inputs become the default
-    float dtype (float32, or float64 under `jax_enable_x64`). Anything else (strings,
-    `None`, complex numbers, ragged lists) raises a `TypeError` naming the argument.
-    """
-    label = f"`{name}`" if name else "the value"
-    try:
-        x = jnp.asarray(x)
-    except (TypeError, ValueError) as err:
-        raise TypeError(f"{label} must be an array of real numbers, got {repr(x)[:80]}") from err
-    if jnp.issubdtype(x.dtype, jnp.complexfloating):
-        raise TypeError(f"{label} must be real, got dtype {x.dtype}")
-    if not jnp.issubdtype(x.dtype, jnp.floating):
-        x = x.astype(jnp.result_type(x.dtype, float))
-    return x
-
-
-def is_concrete(*xs) -> bool:
-    """True if none of `xs` is a tracer, i.e. values can be inspected."""
-    return not any(isinstance(x, jax.core.Tracer) for x in xs)
-
-
-def as_shape(shape: int | Sequence[int]) -> tuple[int, ...]:
-    """Normalise a sample shape; an int `n` means `(n,)`."""
-    if isinstance(shape, (int, np.integer)):
-        shape = (int(shape),)
-    try:
-        shape = tuple(int(s) for s in shape)
-    except TypeError:
-        raise ValueError(
-            f"`shape` must be a tuple of non-negative ints, got {shape!r}."
-        ) from None
-    if any(s < 0 for s in shape):
-        raise ValueError(f"`shape` must contain non-negative ints, got {shape}.")
-    return shape
-
-
-def check_point(x: ArrayLike, dim: int) -> Array:
-    """Validate the (static) shape of a single point passed to `log_prob`."""
-    x = as_float_array(x)
-    if x.shape != (dim,):
-        raise ValueError(
-            f"log_prob expects a single point of shape ({dim},), got shape "
-            f"{x.shape}; use jax.vmap for batches."
-        )
-    return x
-
-
-def vector(x: ArrayLike, name: str) -> Array:
-    """A floating 1-D array with at least one entry."""
-    x = as_float_array(x, name)
-    if x.ndim != 1 or x.shape[0] == 0:
-        raise ValueError(f"`{name}` must be a non-empty 1-D array, got shape {x.shape}.")
-    return x
+from .._validation import as_float_array, is_concrete
 
 
 def scale_tril(cov: ArrayLike, dim: int, name: str) -> Float[Array, "d d"]:
@@ -114,14 +56,3 @@ def scale_tril(cov: ArrayLike, dim: int, name: str) -> Float[Array, "d d"]:
     if not (np.all(np.isfinite(tril)) and np.all(np.diag(tril).astype(dtype) > 0)):
         raise ValueError(f"`{name}` is too ill-conditioned to be represented in {dtype}.")
     return jnp.asarray(tril, dtype)
-
-
-def mahalanobis_sq(tril: Float[Array, "d d"], r: Float[Array, " d"]) -> Float[Array, ""]:
-    """`r^T (L L^T)^{-1} r` via a triangular solve."""
-    z = jax.scipy.linalg.solve_triangular(tril, r, lower=True)
-    return jnp.sum(z**2)
-
-
-def half_log_det(tril: Float[Array, "d d"]) -> Float[Array, ""]:
-    """`0.5 * log det(L L^T) = sum(log diag L)`."""
-    return jnp.sum(jnp.log(jnp.diag(tril)))

@@ -129,7 +129,13 @@ def compare_renderers(
             scene file (its filter, film size and depth: every method renders the same
             `resolution` and `max_depth`).
     """
-    from targets.mitsuba import PrimarySampleSpace, UnsupportedSceneError, load_scene, native_paths_per_second, reference_image
+    from targets.mitsuba import (
+        PrimarySampleSpace,
+        UnsupportedSceneError,
+        load_scene,
+        native_paths_per_second,
+        reference_image,
+    )
 
     bad = [m for m in methods if m not in METHODS]
     if bad:
@@ -141,7 +147,7 @@ def compare_renderers(
     for scene_name in scenes:
         scene_key = Path(scene_name).stem
         references[scene_key] = reference = reference_image(scene_name, reference_spp, resolution=resolution, max_depth=max_depth)
-        scene = load_scene(scene_name, resolution, max_depth, log=lambda note, name=scene_key: say(f"{name}: note: {note}"))
+        scene = load_scene(scene_name, resolution, max_depth, log=lambda note, name=scene_key: say(f"{name}: note: {note}"))  # type: ignore[misc]
         target = PrimarySampleSpace(scene)
         throughput[scene_key] = (target.paths_per_second(), native_paths_per_second(scene, max_depth=max_depth))
         for method in methods:
@@ -163,7 +169,7 @@ def compare_renderers(
                     result = render(
                         pss_target, make_renderer(method, tour_length=tour_length), key=jax.random.key(1000 * r + 7),
                         seconds=seconds, lanes=lanes, progress=progress,
-                        on_update=lambda img, _s: stamps.append((time.perf_counter(), relative_mse(img, reference))),
+                        on_update=lambda img, _s: stamps.append((time.perf_counter(), relative_mse(img, reference))),  # noqa: B023
                     )
                     shift = stamps[-1][0] - result.seconds if stamps else 0.0
                     curve = [(t - shift, e) for t, e in stamps]
@@ -217,7 +223,7 @@ def markdown(comparison: RenderComparison) -> str:
                     lines.append(f"| {method} | skipped: {c.skipped[(scene, method)]} | | | | | | |")
                 continue
             var = variance_across([r.image for r in runs]) if len(runs) > 1 else math.nan
-            m = lambda k: float(np.mean([r.metrics[k] for r in runs]))  # noqa: E731
+            m = lambda k: float(np.mean([r.metrics[k] for r in runs]))  # noqa: B023, E731
             lines.append(
                 f"| {method} | {np.mean([r.evaluations for r in runs]):,.0f} | {_fmt(m('relative_mse'))} | {_fmt(m('mrse'))} | "
                 f"{_fmt(m('mape'))} | {_fmt(m('l1'))} | {_fmt(m('mse'))} | {_fmt(var)} |"

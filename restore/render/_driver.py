@@ -13,7 +13,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._checkpoint import check_interval, key_fingerprint, load_checkpoint, save_checkpoint
+from .._checkpoint import key_fingerprint, load_checkpoint, save_checkpoint
+from .._validation import check_interval
 from ._pss import check_target
 from ._renderer import (
     AbstractRenderer,

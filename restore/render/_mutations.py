@@ -15,20 +15,20 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float, PRNGKeyArray
 
 
-def wrap(u: Float[Array, "..."]) -> Float[Array, "..."]:
+def wrap(u: Float[Array, ...]) -> Float[Array, ...]:
     """Map onto `[0, 1)` (a tiny negative float32 value would round `u - floor(u)` to 1)."""
     y = u - jnp.floor(u)
     return jnp.where(y >= 1.0, y - 1.0, y)
 
 
-def uniform_block(key: PRNGKeyArray, shape: tuple[int, ...]) -> Float[Array, "..."]:
+def uniform_block(key: PRNGKeyArray, shape: tuple[int, ...]) -> Float[Array, ...]:
     """`jax.random.uniform` in float32, drawn flat and reshaped: XLA compiles the flat
     counter of the (partitionable) threefry generator several times faster than a
     multi-dimensional one (1.4 s against 0.35 s for a `(2048, 7)` draw on a CPU)."""
     return jax.random.uniform(key, (math.prod(shape),), jnp.float32).reshape(shape)
 
 
-def normal_block(key: PRNGKeyArray, shape: tuple[int, ...]) -> Float[Array, "..."]:
+def normal_block(key: PRNGKeyArray, shape: tuple[int, ...]) -> Float[Array, ...]:
     """`jax.random.normal` in float32, drawn flat and reshaped (see `uniform_block`)."""
     return jax.random.normal(key, (math.prod(shape),), jnp.float32).reshape(shape)
 
@@ -38,7 +38,7 @@ def uniform_draw(key: PRNGKeyArray, n: int, dim: int) -> Float[Array, "n dim"]:
     return uniform_block(key, (n, dim))
 
 
-def fine_uniform(coarse: Float[Array, "..."], fine: Float[Array, "..."]) -> Float[Array, "..."]:
+def fine_uniform(coarse: Float[Array, ...], fine: Float[Array, ...]) -> Float[Array, ...]:
     """A uniform on `[0, 1)` with float32 resolution down to `2^-46` near zero, from two uniforms.
 
     `jax.random.uniform` returns multiples of `2^-23`, so `u < p` would succeed with

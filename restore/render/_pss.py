@@ -54,13 +54,13 @@ def check_target(target: object, *, needs_gradient: bool = False) -> None:
     missing = [m for m in members if not hasattr(target, m)]
     if missing:
         raise TypeError(f"{type(target).__name__} is not a PSS target: it lacks {', '.join(missing)}")
-    dim, res = target.dim, target.resolution
+    dim, res = target.dim, target.resolution  # type: ignore[attr-defined]
     if isinstance(dim, bool) or not isinstance(dim, int) or dim < 2:
         raise ValueError(f"target.dim must be an integer >= 2 (two image coordinates), got {dim!r}")
     if not (isinstance(res, tuple) and len(res) == 2 and all(isinstance(r, int) and r >= 1 for r in res)):
         raise ValueError(f"target.resolution must be a pair of positive integers (W, H), got {res!r}")
-    if target.num_pixels != res[0] * res[1]:
-        raise ValueError(f"target.num_pixels is {target.num_pixels}, but W * H = {res[0] * res[1]}")
+    if target.num_pixels != res[0] * res[1]:  # type: ignore[attr-defined]
+        raise ValueError(f"target.num_pixels is {target.num_pixels}, but W * H = {res[0] * res[1]}")  # type: ignore[attr-defined]
 
 
 class PSSPoint(NamedTuple):

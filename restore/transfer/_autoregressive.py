@@ -10,19 +10,10 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
+from .._linalg import mahalanobis_sq
+from .._validation import as_float_array, check_point, is_concrete
 from ..regeneration import Gaussian
-from ..regeneration._utils import as_float_array, is_concrete, mahalanobis_sq
 from ._base import AbstractTransfer
-
-
-def check_position(x: ArrayLike, dim: int, name: str) -> Array:
-    """A single floating point of shape `(dim,)`, or a clear `ValueError` (the shape is static)."""
-    x = as_float_array(x)
-    if x.shape != (dim,):
-        raise ValueError(
-            f"`{name}` must be a single point of shape ({dim},), got shape {x.shape}; use jax.vmap for batches."
-        )
-    return x
 
 
 @final
@@ -53,7 +44,7 @@ class AutoregressiveGaussian(AbstractTransfer):
 
     def __init__(self, mean: ArrayLike, covariance: ArrayLike, correlation: ArrayLike):
         self.reference = Gaussian(mean, covariance)
-        rho = as_float_array(correlation)
+        rho = as_float_array(correlation, "correlation")
         if rho.ndim != 0:
             raise ValueError(f"`correlation` must be a scalar, got shape {rho.shape}.")
         if is_concrete(rho):
@@ -74,7 +65,7 @@ class AutoregressiveGaussian(AbstractTransfer):
 
     def sample(self, key: PRNGKeyArray, exit_position: Float[Array, " d"]) -> Float[Array, " d"]:
         """A start point `m + rho (x_exit - m) + sqrt(1 - rho^2) L eps`, in the dtype of `exit_position`."""
-        x = check_position(exit_position, self.dim, "exit_position")
+        x = check_point(exit_position, self.dim, "exit_position")
         eps = jax.random.normal(key, x.shape, x.dtype)
         rho = self.correlation
         y = self.mean + rho * (x - self.mean) + jnp.sqrt(1 - rho**2) * (self.scale_tril @ eps)
@@ -84,8 +75,8 @@ class AutoregressiveGaussian(AbstractTransfer):
         self, exit_position: Float[Array, " d"], position: Float[Array, " d"]
     ) -> Float[Array, ""]:
         """`log N(y; m + rho (x_exit - m), (1 - rho^2) S)`, the normalised log density of a start point."""
-        x = check_position(exit_position, self.dim, "exit_position")
-        y = check_position(position, self.dim, "position")
+        x = check_point(exit_position, self.dim, "exit_position")
+        y = check_point(position, self.dim, "position")
         rho = self.correlation
         one_minus_rho_sq = 1 - rho**2
         r = y - (self.mean + rho * (x - self.mean))

@@ -7,12 +7,10 @@ from typing import ClassVar, final
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
-from ..local._base import as_scale, check_vector_dim
+from .._validation import as_scale, check_integer, check_point, check_vector_dim
 from ..regeneration import AbstractRegeneration
-from ._autoregressive import check_position
 from ._base import AbstractTransfer
 
 
@@ -35,9 +33,10 @@ class MetropolisTransfer(AbstractTransfer):
             more steps forget more of the exit point.
 
     Raises:
-        TypeError: if `reference` is not a `restore.regeneration` distribution.
+        TypeError: if `reference` is not a `restore.regeneration` distribution, or
+            `scale` or `num_steps` is not a number.
         ValueError: for a scale that is not positive and finite or has the wrong shape,
-            or a `num_steps` that is not a positive int.
+            or a `num_steps` that is not a positive integer.
     """
 
     reference: AbstractRegeneration
@@ -50,11 +49,9 @@ class MetropolisTransfer(AbstractTransfer):
             raise TypeError(f"reference must be a restore.regeneration distribution, got {type(reference).__name__}")
         scale = as_scale(scale, "MetropolisTransfer scale")
         check_vector_dim(scale, reference.dim, "MetropolisTransfer scale")
-        if isinstance(num_steps, bool) or not isinstance(num_steps, (int, np.integer)) or num_steps < 1:
-            raise ValueError(f"num_steps must be a positive int, got {num_steps!r}")
         self.reference = reference
         self.scale = scale
-        self.num_steps = int(num_steps)
+        self.num_steps = check_integer(num_steps, "num_steps")
 
     def sample(self, key: PRNGKeyArray, exit_position: Float[Array, " d"]) -> Float[Array, " d"]:
         """The point after `num_steps` Metropolis steps from the exit point, in its dtype.
@@ -62,7 +59,7 @@ class MetropolisTransfer(AbstractTransfer):
         A proposal of zero reference density is always rejected; from an exit point of
         zero density (outside the support), any proposal of positive density is accepted.
         """
-        x0 = check_position(exit_position, self.dim, "exit_position")
+        x0 = check_point(exit_position, self.dim, "exit_position")
         dtype = x0.dtype
         log_q0 = jnp.asarray(self.reference.log_prob(x0))
         log_dtype = log_q0.dtype

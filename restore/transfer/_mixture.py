@@ -12,9 +12,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
+from .._validation import as_float_array, check_point, is_concrete
 from ..regeneration import AbstractRegeneration
-from ..regeneration._utils import as_float_array, is_concrete
-from ._autoregressive import check_position
 from ._base import AbstractTransfer
 
 
@@ -97,7 +96,7 @@ class TransferMixture(AbstractTransfer):
 
     def sample(self, key: PRNGKeyArray, exit_position: Float[Array, " d"]) -> Float[Array, " d"]:
         """A draw of a component chosen with probabilities `weights`, in the dtype of `exit_position`."""
-        x = check_position(exit_position, self.dim, "exit_position")
+        x = check_point(exit_position, self.dim, "exit_position")
         key_pick, key_draw = jax.random.split(key)
         if len(self.components) == 1:
             return self.components[0].sample(key_draw, x).astype(x.dtype)
@@ -117,5 +116,5 @@ class TransferMixture(AbstractTransfer):
         missing = [type(c).__name__ for c in self.components if not hasattr(c, "log_transition_density")]
         if missing:
             raise NotImplementedError(f"components {missing} have no transition density, so neither has the mixture")
-        terms = jnp.stack([c.log_transition_density(exit_position, position) for c in self.components])
+        terms = jnp.stack([c.log_transition_density(exit_position, position) for c in self.components])  # type: ignore[attr-defined]
         return jax.scipy.special.logsumexp(self.log_weights + terms)

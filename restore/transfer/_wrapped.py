@@ -9,9 +9,8 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
-from ..local._base import as_scale, check_vector_dim
+from .._validation import as_scale, check_point, check_vector_dim
 from ..regeneration import UniformTorus
-from ._autoregressive import check_position
 from ._base import AbstractTransfer
 
 
@@ -31,7 +30,8 @@ class WrappedGaussianJump(AbstractTransfer):
         dim: the dimension `d` of the torus, a positive int (static).
 
     Raises:
-        ValueError: for a `dim` that is not a positive int, or a scale that is not
+        TypeError: for a `dim` or a scale that is not a number.
+        ValueError: for a `dim` that is not a positive integer, or a scale that is not
             positive and finite or has the wrong shape.
     """
 
@@ -47,7 +47,7 @@ class WrappedGaussianJump(AbstractTransfer):
 
     def sample(self, key: PRNGKeyArray, exit_position: Float[Array, " d"]) -> Float[Array, " d"]:
         """A start point `(x_exit + scale * eps) mod 1` in `[0, 1)^d`, in the dtype of `exit_position`."""
-        x = check_position(exit_position, self.dim, "exit_position")
+        x = check_point(exit_position, self.dim, "exit_position")
         y = jnp.mod(x + self.scale * jax.random.normal(key, x.shape, x.dtype), 1).astype(x.dtype)
         # `mod` of a tiny negative number rounds to exactly 1, outside [0, 1).
         return jnp.where(y >= 1, jnp.zeros_like(y), y)
@@ -63,8 +63,8 @@ class WrappedGaussianJump(AbstractTransfer):
         double precision), `5e-5` at `scale = 1`. Exactly `-inf` for a `position` outside
         `[0, 1)^d`.
         """
-        x = check_position(exit_position, self.dim, "exit_position")
-        y = check_position(position, self.dim, "position")
+        x = check_point(exit_position, self.dim, "exit_position")
+        y = check_point(position, self.dim, "position")
         inside = jnp.all((y >= 0) & (y < 1))
         diff = y - x
         nearest = diff - jnp.round(diff)  # in [-1/2, 1/2]

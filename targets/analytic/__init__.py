@@ -8,15 +8,20 @@ additionally report the component a point most likely came from (`assign_mode`).
 """
 
 from ._banana import Banana as Banana
-from ._base import AbstractMixture as AbstractMixture, AbstractTarget as AbstractTarget
+from ._base import AbstractMixture as AbstractMixture
+from ._base import AbstractTarget as AbstractTarget
 from ._builders import (
     spread_gaussian_mixture as spread_gaussian_mixture,
+)
+from ._builders import (
     well_separated_gaussian_mixture as well_separated_gaussian_mixture,
+)
+from ._builders import (
     well_separated_student_t_mixture as well_separated_student_t_mixture,
 )
 from ._funnel import Funnel as Funnel
 from ._gaussian_mixture import GaussianMixture as GaussianMixture
 from ._many_well import ManyWell as ManyWell
+from ._pss_image import AnalyticImage as AnalyticImage
 from ._ring import Ring as Ring
 from ._student_t_mixture import StudentTMixture as StudentTMixture
-from ._pss_image import AnalyticImage as AnalyticImage

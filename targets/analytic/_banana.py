@@ -83,7 +83,7 @@ class Banana(AbstractTarget):
         var = var.at[1].set(1.0 + 2.0 * self.curvature**2 * self.scale**4)
         return jnp.diag(var)
 
-    def _marginal_cdf(self, i: int, t: Float[Array, "..."]) -> Float[Array, "..."]:
+    def _marginal_cdf(self, i: int, t: Float[Array, ...]) -> Float[Array, ...]:
         if i == 1:
             raise NotImplementedError(
                 "Banana: coordinate 1 (the bent one) has no closed-form marginal CDF; "

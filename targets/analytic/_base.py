@@ -73,7 +73,7 @@ class AbstractTarget(eqx.Module):
     def covariance(self) -> Float[Array, "d d"]:
         """The exact covariance matrix, shape `(d, d)`."""
 
-    def marginal_cdf(self, i: int, t: ArrayLike) -> Float[Array, "..."]:
+    def marginal_cdf(self, i: int, t: ArrayLike) -> Float[Array, ...]:
         """Exact CDF of coordinate `i`, evaluated elementwise at `t`.
 
         Arguments:
@@ -88,7 +88,7 @@ class AbstractTarget(eqx.Module):
         return _marginal_cdf_jit(self, i, _checks.float_array(t, "t"))
 
     @abc.abstractmethod
-    def _marginal_cdf(self, i: int, t: Float[Array, "..."]) -> Float[Array, "..."]:
+    def _marginal_cdf(self, i: int, t: Float[Array, ...]) -> Float[Array, ...]:
         """`marginal_cdf` for a validated coordinate and a floating-point array `t`."""
 
 
@@ -170,7 +170,7 @@ class AbstractMixture(AbstractTarget):
     def _sample(self, key: PRNGKeyArray, n: int) -> Float[Array, "n d"]:
         return self._sample_with_modes(key, n)[0]
 
-    def _marginal_cdf(self, i: int, t: Float[Array, "..."]) -> Float[Array, "..."]:
+    def _marginal_cdf(self, i: int, t: Float[Array, ...]) -> Float[Array, ...]:
         t = t.astype(jnp.result_type(t, self.weights))
         return self.component_marginal_cdfs(i, t) @ self.weights
 

@@ -118,7 +118,7 @@ def constants() -> DoubleWellConstants:
     return DoubleWellConstants(log_z, mean, second, positive, locs, scales, log_weights, log_bound)
 
 
-def log_envelope(x: Float[Array, "..."], c: DoubleWellConstants) -> Float[Array, "..."]:
+def log_envelope(x: Float[Array, ...], c: DoubleWellConstants) -> Float[Array, ...]:
     """`log g(x)`, the log density of the envelope mixture."""
     parts = [w + _log_t2(x, m, s) for w, m, s in zip(c.log_weights, c.locs, c.scales)]
     return logsumexp(jnp.stack(parts), axis=0)
@@ -152,7 +152,7 @@ def sample(key: PRNGKeyArray, n: int, dtype) -> Float[Array, " n"]:
     return jax.lax.while_loop(lambda state: ~jnp.all(state[2]), redraw, init)[1]
 
 
-def cdf(t: Float[Array, "..."]) -> Float[Array, "..."]:
+def cdf(t: Float[Array, ...]) -> Float[Array, ...]:
     """`P(x <= t)`, by composite Gauss-Legendre quadrature from `-SUPPORT` to `t` (about 1e-13 accurate)."""
     c = constants()
     nodes, weights = np.polynomial.legendre.leggauss(CDF_NODES)

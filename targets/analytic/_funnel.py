@@ -75,7 +75,7 @@ class Funnel(AbstractTarget):
         var = jnp.full((self.dim,), jnp.exp(0.5 * self.scale**2))
         return jnp.diag(var.at[0].set(self.scale**2))
 
-    def _marginal_cdf(self, i: int, t: Float[Array, "..."]) -> Float[Array, "..."]:
+    def _marginal_cdf(self, i: int, t: Float[Array, ...]) -> Float[Array, ...]:
         if i != 0:
             raise NotImplementedError(
                 "Funnel: only coordinate 0 (v ~ N(0, scale^2)) has a closed-form marginal "

@@ -107,5 +107,5 @@ class ManyWell(AbstractTarget):
         pair = jnp.array([c.second_moment - c.mean**2, 1.0])
         return jnp.diag(jnp.tile(pair, self.num_pairs))
 
-    def _marginal_cdf(self, i: int, t: Float[Array, "..."]) -> Float[Array, "..."]:
+    def _marginal_cdf(self, i: int, t: Float[Array, ...]) -> Float[Array, ...]:
         return ndtr(t) if i % 2 else _double_well.cdf(t)

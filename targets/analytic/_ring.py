@@ -10,9 +10,9 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import jax.scipy.special as jsp
-from jax.scipy.special import log_ndtr
 import numpy as np
 import scipy.special as ssp
+from jax.scipy.special import log_ndtr
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
 from . import _checks
@@ -138,10 +138,10 @@ class Ring(AbstractTarget):
         z = (safe_norm(x) - self.radius) / self.width
         return -0.5 * z * z - self.log_normaliser
 
-    def _log_tail(self, t: Float[Array, "..."], m: int) -> Float[Array, "..."]:
+    def _log_tail(self, t: Float[Array, ...], m: int) -> Float[Array, ...]:
         return log_radial_tail(t, m, self.radius, self.width, jnp, jsp)
 
-    def radial_cdf(self, t: ArrayLike) -> Float[Array, "..."]:
+    def radial_cdf(self, t: ArrayLike) -> Float[Array, ...]:
         """Exact CDF of the radius `|x|`, evaluated elementwise at `t`.
 
         Arguments:
@@ -149,7 +149,7 @@ class Ring(AbstractTarget):
         """
         return _radial_cdf_jit(self, _checks.float_array(t, "t"))
 
-    def _radial_cdf(self, t: Float[Array, "..."]) -> Float[Array, "..."]:
+    def _radial_cdf(self, t: Float[Array, ...]) -> Float[Array, ...]:
         tail = jnp.exp(self._log_tail(jnp.maximum(t, 0.0), self.dim - 1) - self.log_radial_mass)
         return jnp.where(t > 0, 1.0 - tail, 0.0)
 
@@ -208,7 +208,7 @@ class Ring(AbstractTarget):
     def covariance(self) -> Float[Array, "d d"]:
         return (self.second_moment / self.dim) * jnp.eye(self.dim)
 
-    def _marginal_cdf(self, i: int, t: Float[Array, "..."]) -> Float[Array, "..."]:
+    def _marginal_cdf(self, i: int, t: Float[Array, ...]) -> Float[Array, ...]:
         # The same for every coordinate. 1-D: x = +-rho with equal probability. 3-D:
         # x_i = rho u with u ~ U[-1, 1] (Archimedes), so for s >= 0
         # P(x_i > s) = E[(1 - s / rho) / 2; rho > s] = (K_2(s) - s K_1(s)) / (2 K_2(0)).

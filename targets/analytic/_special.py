@@ -11,7 +11,7 @@ from jax.scipy.special import betainc, ndtri
 from jaxtyping import Array, ArrayLike, Float, Int, PRNGKeyArray
 
 
-def student_t_cdf(t: ArrayLike, df: ArrayLike) -> Float[Array, "..."]:
+def student_t_cdf(t: ArrayLike, df: ArrayLike) -> Float[Array, ...]:
     """CDF of the standard univariate Student-t distribution with `df` degrees of freedom.
 
     Uses the regularised incomplete beta function, evaluated at whichever of

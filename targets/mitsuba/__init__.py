@@ -11,25 +11,53 @@ Importing this package does not import Mitsuba: it is loaded (with a working lib
 see `load_mitsuba`) on first use. Install it with `pip install 'restore-mcmc[mitsuba]'`.
 """
 
-from ._llvm import LLVMNotFoundError as LLVMNotFoundError, find_libllvm as find_libllvm, load_mitsuba as load_mitsuba
+from ._llvm import LLVMNotFoundError as LLVMNotFoundError
+from ._llvm import find_libllvm as find_libllvm
+from ._llvm import load_mitsuba as load_mitsuba
 from ._native import (
     NativeRender as NativeRender,
+)
+from ._native import (
     native_paths_per_second as native_paths_per_second,
+)
+from ._native import (
     read_exr as read_exr,
+)
+from ._native import (
     reference_image as reference_image,
+)
+from ._native import (
     render_native as render_native,
+)
+from ._native import (
     render_native_for as render_native_for,
+)
+from ._native import (
     write_exr as write_exr,
 )
-from ._path_tracer import dimension as dimension, trace_paths as trace_paths
+from ._path_tracer import dimension as dimension
+from ._path_tracer import trace_paths as trace_paths
 from ._scene_checks import UnsupportedSceneError as UnsupportedSceneError
 from ._scenes import (
     SCENES as SCENES,
+)
+from ._scenes import (
     caustic as caustic,
+)
+from ._scenes import (
     cornell_box as cornell_box,
+)
+from ._scenes import (
     door_ajar as door_ajar,
+)
+from ._scenes import (
     glass_torus as glass_torus,
+)
+from ._scenes import (
     load_scene as load_scene,
+)
+from ._scenes import (
     scene_dict as scene_dict,
 )
-from ._target import PathSamples as PathSamples, PrimarySampleSpace as PrimarySampleSpace
+from ._target import PathSamples as PathSamples
+from ._target import PrimarySampleSpace as PrimarySampleSpace

@@ -152,8 +152,8 @@ def _exact_sample_gradients(bsdf: Any, ctx: Any, si: Any, bs: Any, weight: Any, 
     delta = _sampled_delta(bs)
     value, pdf = bsdf.eval_pdf(ctx, si, bs.wo, active & ~delta)
     smooth_weight = dr.select(pdf > 0, value / dr.select(pdf > 0, pdf, 1.0), 0.0)
-    weight = dr.replace_grad(weight, dr.select(delta, dr.detach(weight), smooth_weight))
-    pdf = dr.replace_grad(bs.pdf, dr.select(delta, dr.detach(bs.pdf), pdf))
+    weight = dr.replace_grad(weight, dr.select(delta, dr.detach(weight), smooth_weight))  # type: ignore[func-returns-value]
+    pdf = dr.replace_grad(bs.pdf, dr.select(delta, dr.detach(bs.pdf), pdf))  # type: ignore[func-returns-value]
     return weight, pdf
 
 
