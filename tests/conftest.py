@@ -1,4 +1,8 @@
-"""Statistical checks run in float64 with fixed keys: they are deterministic."""
+"""Statistical checks run in float64 with fixed keys: they are deterministic.
+
+The tests are arranged by kind, one folder each, and every test is marked with its
+folder's kind, so `pytest -m unit` (or `-m "not docs"`, ...) selects by kind.
+"""
 
 import os
 
@@ -9,3 +13,18 @@ os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_backend_opt
 import jax  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
+
+
+KINDS = ("unit", "statistical", "properties", "integration", "docs")
+
+
+def pytest_collection_modifyitems(config, items):
+    """Mark each test with the kind of the folder it is in."""
+    from pathlib import Path
+
+    import pytest
+
+    for item in items:
+        kind = Path(str(item.path)).parent.name
+        if kind in KINDS:
+            item.add_marker(getattr(pytest.mark, kind))

@@ -11,8 +11,7 @@ from restore.dynamics import BrownianMotion
 from restore.local import HMC, MALA, BlackJAXKernel, RandomWalk, metropolis_accept
 from restore.regeneration import Gaussian
 from restore.testing import stationarity_test
-
-from ._models import (
+from tests._models import (
     RateDistortion,
     UnadjustedRandomWalk,
     banana,

@@ -21,8 +21,7 @@ from restore.local import MALA, RandomWalk
 from restore.regeneration import AbstractRegeneration, Gaussian, Mixture
 from restore.testing import stationarity_test
 from restore.transfer import AbstractTransfer, AutoregressiveGaussian, Independent, MetropolisTransfer
-
-from ._models import mixture_2d
+from tests._models import mixture_2d
 
 S = jnp.array([[1.2, 0.4], [0.4, 0.8]])
 PRECISION = jnp.linalg.inv(S)

@@ -47,6 +47,7 @@ def test_diagonal_mixture_draws_follow_its_density(df):
     assert stats.kstest(draws[:, 0], cdf).pvalue > 1e-3
 
 
+@pytest.mark.slow
 def test_product_mixture_density_and_draws():
     weights = jnp.asarray([[0.85, 0.15], [0.5, 0.5], [1.0, 1e-3]])
     means = jnp.asarray([[1.7, -1.7], [0.0, 4.0], [2.0, -2.0]])
@@ -117,6 +118,7 @@ def test_weighted_product_fit_recovers_unequal_wells():
     np.testing.assert_allclose(fit.log_prob(x[:20]), jax.vmap(fit.distribution.log_prob)(jnp.asarray(x[:20])), rtol=1e-10)
 
 
+@pytest.mark.slow
 def test_choice_follows_the_structure_of_the_draws():
     rng = np.random.default_rng(4)
     n = 4000

@@ -68,6 +68,7 @@ def good():
     return _run(Gaussian(jnp.zeros(2), 1.2))
 
 
+@pytest.mark.slow
 def test_top_sets_hold_the_largest_tours_exactly(good):
     """Each lane keeps its largest tours; with a single chunk's worth of tours the sets equal a brute-force record."""
     tails, sums = good.tails, good.sums
@@ -107,6 +108,7 @@ def _two_modes(x):
     return jnp.logaddexp(-0.5 * jnp.sum((x - 3) ** 2), -0.5 * jnp.sum((x + 3) ** 2)) - math.log(4 * math.pi)
 
 
+@pytest.mark.slow
 def test_a_missed_mode_is_flagged():
     """u covers only the left of two modes: log Z comes out near log(1/2) with a tiny standard error, but the
     rare tours that cross into the uncovered mode are never killed there, outlast the run, and say so."""
@@ -138,6 +140,7 @@ def test_residual_tail_matches_brute_force_when_every_tour_is_kept():
     assert importance_k(tails, int(np.sum(res.sums.num_iw))) == pytest.approx(float(res.normalising_constant("importance").k_hat))
 
 
+@pytest.mark.slow
 def test_lanes_subsets_and_merges_keep_their_diagnostics(good):
     part = good.estimate("x", lanes=slice(0, 32))
     assert part.k_hat.shape == (2,) and np.all(np.isfinite(part.k_hat))

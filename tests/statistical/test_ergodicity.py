@@ -6,8 +6,7 @@ import numpy as np
 import restore
 from restore.local import MALA, RandomWalk
 from restore.testing import calibration_test, ergodicity_test
-
-from ._models import (
+from tests._models import (
     banana,
     broad_regeneration,
     laplace_regeneration,

@@ -5,8 +5,7 @@ import pytest
 from typer.testing import CliRunner
 
 from restore.cli import app
-
-from ._mitsuba_extra import mitsuba_extra_installed, xml_scene
+from tests._mitsuba_extra import mitsuba_extra_installed, xml_scene
 
 if not mitsuba_extra_installed():
     pytest.skip("the `mitsuba` extra is not installed", allow_module_level=True)

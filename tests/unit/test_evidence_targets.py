@@ -109,6 +109,7 @@ def test_many_well_samples_match_marginal_cdfs(many_well_draws):
         assert scipy.stats.kstest(many_well_draws[:20_000, i], cdf).pvalue > KS_P_MIN, i
 
 
+@pytest.mark.slow
 def test_many_well_samples_match_density_on_a_projection(many_well_draws):
     """KS on `a + b` of one pair: its CDF is `∫ f(a) Phi(t - a) da`, by quadrature on a fine grid."""
     s = many_well_draws[:10_000, 0] + many_well_draws[:10_000, 1]

@@ -26,6 +26,7 @@ def test_rate_arithmetic_is_exact_in_log_space_even_in_float32():
     assert not np.isnan(float(log_kill_rate(0.0, jnp.inf, jnp.inf)))
 
 
+@pytest.mark.slow
 def test_no_zombie_tours_in_float32():
     """A float32 run where gamma = c u / p overflows must still kill, and give finite estimates."""
     with jax.enable_x64(False):
@@ -71,6 +72,7 @@ def test_init_and_step_shapes_and_jit_vmap():
     assert np.all(np.asarray(info.expected_holding_time) > 0)
 
 
+@pytest.mark.slow
 def test_tour_length_needs_calibration_and_reports_the_pilot():
     sampler = restore.JumpRestore(std_normal, RandomWalk(0.5), Gaussian(jnp.zeros(2), 2.0), tour_length=4.0)
     with pytest.raises(ValueError, match="calibrate"):
@@ -123,6 +125,7 @@ def test_bad_shapes_are_rejected():
         restore.sample(sampler, jax.random.key(0), num_lanes=4, num_steps=0, progress=False)
 
 
+@pytest.mark.slow
 def test_nan_and_inf_log_densities_are_counted_not_propagated():
     def logp(x):  # NaN on a half-plane, +inf on a thin strip: both invalid
         value = std_normal(x)
@@ -137,6 +140,7 @@ def test_nan_and_inf_log_densities_are_counted_not_propagated():
     assert np.all(np.isfinite(est.value)) and np.all(np.isfinite(est.standard_error))
 
 
+@pytest.mark.slow
 def test_zero_density_region_kills_at_once_with_zero_weight():
     logp = lambda x: jnp.where(jnp.all(jnp.abs(x) < 1.0), 0.0, -jnp.inf)  # noqa: E731 uniform on a square
     sampler = restore.JumpRestore(logp, RandomWalk(0.3), Gaussian(jnp.zeros(2), 1.0), log_rate=0.0)
@@ -149,6 +153,7 @@ def test_zero_density_region_kills_at_once_with_zero_weight():
     assert result.num_invalid == 0
 
 
+@pytest.mark.slow
 def test_narrow_regeneration_is_detected():
     sampler = restore.JumpRestore(std_normal, RandomWalk(0.8), UniformBox(-jnp.ones(2), jnp.ones(2)), log_rate=0.0)
     with pytest.warns(RuntimeWarning, match="regeneration density is zero"):

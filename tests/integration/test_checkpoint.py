@@ -14,10 +14,10 @@ import pytest
 import restore
 from restore._checkpoint import CheckpointError, read_header
 
-sys.path.insert(0, str(Path(__file__).parent))
+sys.path.insert(0, str(Path(__file__).parents[1]))
 import _checkpoint_run as child  # noqa: E402
 
-SCRIPT = Path(__file__).parent / "_checkpoint_run.py"
+SCRIPT = Path(__file__).parents[1] / "_checkpoint_run.py"
 
 
 @pytest.fixture(scope="module")

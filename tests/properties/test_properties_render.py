@@ -23,7 +23,7 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from ._mitsuba_extra import mitsuba_extra_installed
+from tests._mitsuba_extra import mitsuba_extra_installed
 
 if not mitsuba_extra_installed():
     pytest.skip("the `mitsuba` extra is not installed", allow_module_level=True)

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ._mitsuba_extra import mitsuba_extra_installed, xml_scene
+from tests._mitsuba_extra import mitsuba_extra_installed, xml_scene
 
 if not mitsuba_extra_installed():
     pytest.skip("the `mitsuba` extra is not installed", allow_module_level=True)

@@ -13,7 +13,7 @@ import jax.numpy as jnp
 
 import restore
 
-SCRIPT = Path(__file__).parent / "_memory_run.py"
+SCRIPT = Path(__file__).parents[1] / "_memory_run.py"
 
 
 def test_peak_memory_does_not_grow_with_the_number_of_steps():

@@ -22,7 +22,7 @@ from restore.local import RandomWalk
 from restore.regeneration import Gaussian
 
 NUM_DEVICES = 4
-ROOT = str(Path(__file__).resolve().parents[1])  # the script imports tests._runs
+ROOT = str(Path(__file__).resolve().parents[2])  # the script imports tests._runs
 
 
 def std_normal(x):

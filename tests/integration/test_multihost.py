@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-ROOT = str(Path(__file__).resolve().parents[1])  # the scripts import tests._runs
+ROOT = str(Path(__file__).resolve().parents[2])  # the scripts import tests._runs
 
 SCRIPT = r"""
 import os, sys, warnings

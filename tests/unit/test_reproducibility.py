@@ -27,6 +27,7 @@ def assert_same_run(a, b):
     np.testing.assert_array_equal(a.histogram[0], b.histogram[0])
 
 
+@pytest.mark.slow
 def test_same_key_and_arguments_give_identical_results():
     kwargs = dict(num_lanes=8, num_steps=300, progress=False)
     a = restore.sample(sampler(), jax.random.key(3), **kwargs)
@@ -43,6 +44,7 @@ def test_same_key_and_arguments_give_identical_results():
         np.testing.assert_allclose(getattr(a.sums, name), getattr(c.sums, name), rtol=1e-13, err_msg=name)
 
 
+@pytest.mark.slow
 def test_a_run_split_over_lanes_and_merged_is_the_same_run():
     kwargs = dict(num_steps=300, progress=False, thin=3)
     whole = restore.sample(sampler(), jax.random.key(5), num_lanes=12, **kwargs)
@@ -69,6 +71,7 @@ def test_merge_refuses_parts_of_different_runs():
         restore.sample(sampler(), jax.random.key(0), first_lane=-1, **kwargs)
 
 
+@pytest.mark.slow
 def test_float32_and_float64_agree_within_their_errors():
     kwargs = dict(num_lanes=128, num_steps=600, progress=False)
     low = restore.sample(sampler(jnp.float32), jax.random.key(0), **kwargs)
@@ -83,6 +86,7 @@ def test_float32_and_float64_agree_within_their_errors():
     assert abs(float(za.value - zb.value)) < 4.5 * float(np.hypot(za.standard_error, zb.standard_error))
 
 
+@pytest.mark.slow
 def test_float32_sums_keep_their_precision_over_long_runs():
     """On the unit box the kill rate is the constant `c_tilde`, so the mean holding time is `1 / (1 + c_tilde)`.
 
