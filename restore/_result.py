@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import math
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any, Literal
 
 import jax
 import numpy as np
 
+from ._arviz import to_arviz as arviz_export
 from ._diagnostics import TourStatistics, tour_statistics
 from ._estimates import (
     Estimate,
@@ -42,7 +43,7 @@ class SampleResult:
         self.__dict__.update(fields)
 
     @classmethod
-    def from_run(cls, *, sampler, observables: Observables, sums, histogram, tails, draws, draw_weights, final_state, num_steps, finishing_steps, thin, weights, wall_time, interrupted, draws_note=None, unfinished_tours=0) -> SampleResult:
+    def from_run(cls, *, sampler, observables: Observables, sums, histogram, tails, draws, draw_weights, final_state, num_steps, finishing_steps, thin, weights, wall_time, interrupted, draws_note=None, unfinished_tours=0, trace=None) -> SampleResult:
         to_np = lambda tree: jax.tree.map(np.asarray, tree)
         log_rate = getattr(sampler, "effective_log_rate", getattr(sampler, "log_rate", None))
         result = cls(
@@ -69,6 +70,7 @@ class SampleResult:
             tour_length=getattr(sampler, "tour_length", None),
             pilot=getattr(sampler, "pilot", None),
             expected_tour_times=_expected_tour_times(sampler, final_state, sums),
+            trace=trace,
         )
         result._warn()
         return result
@@ -271,33 +273,25 @@ class SampleResult:
         wv = np.einsum("sl,sl...->l...", w, values)
         return lane_ratio(wv, w.sum(axis=0))
 
-    def to_arviz(self, resample: bool = True, seed: int = 0):
-        """The stored draws as `arviz.InferenceData` (chains = lanes).
+    def to_arviz(self, resample: bool = True, seed: int = 0, transform: Callable[[np.ndarray], Mapping[str, np.ndarray]] | None = None):
+        """The stored draws in ArviZ, lanes as chains: an `xarray.DataTree` with ArviZ 1.x, `InferenceData` with 0.x.
 
-        ArviZ expects equally weighted draws: with `resample=True` each lane's draws are
-        resampled in proportion to their weights (systematic resampling), and the weights
-        are kept in `sample_stats` as `weight`.
+        The stored draws are weighted by their holding times. ArviZ expects equally
+        weighted draws: with `resample=True` each lane's draws are resampled in proportion
+        to their weights (systematic resampling), and `sample_stats` holds `weight` (all
+        ones), `source_draw` (the stored draw each copies) and `source_weight`; with
+        `resample=False` the draws are kept as stored and `sample_stats.weight` holds their
+        weights. The attribute `restore_draws` of the groups says which (`"resampled"` or
+        `"weighted"`). R-hat and ESS from ArviZ (`az.rhat`, `az.ess`) treat lanes as chains.
+
+        Arguments:
+            resample: resample the draws to equal weights (default) or keep them weighted.
+            seed: seed of the resampling.
+            transform: optional map from draws `(lanes, n, d)` to named arrays with leading
+                axes `(lanes, n)`, e.g. `targets.numpyro.NumPyroTarget.constrain`; default one
+                variable `"x"`.
         """
-        import arviz as az
-
-        if self.draws.shape[0] == 0:
-            raise ValueError("no draws were stored: pass max_draws > 0 (or thin) to restore.sample")
-        draws = np.swapaxes(self.draws, 0, 1)  # (lane, draw, d)
-        weights = np.swapaxes(self.draw_weights, 0, 1).astype(np.float64)
-        if resample:
-            rng = np.random.default_rng(seed)
-            n = draws.shape[1]
-            out = np.empty_like(draws)
-            for lane in range(draws.shape[0]):
-                w = weights[lane]
-                if w.sum() <= 0:
-                    out[lane] = draws[lane]
-                    continue
-                cdf = np.cumsum(w / w.sum())
-                idx = np.searchsorted(cdf, (rng.uniform() + np.arange(n)) / n)
-                out[lane] = draws[lane, np.minimum(idx, n - 1)]
-            draws = out
-        return az.from_dict(posterior={"x": draws}, sample_stats={"weight": weights})
+        return arviz_export(self.draws, self.draw_weights, resample=resample, seed=seed, transform=transform, attrs={"sampler": self.sampler_name})
 
     # ------------------------------------------------------------------ reporting
     def _warn(self) -> None:
