@@ -26,6 +26,7 @@ PACKAGES = (
     "restore.bench",
     "targets.analytic",
     "targets.mitsuba",
+    "targets.numpyro",
 )
 
 #: `::: identifier` lines of mkdocstrings, which render one object (and its members).
