@@ -41,5 +41,6 @@ from ._restore import RestoreState as RestoreState
 from ._result import LogEstimate as LogEstimate
 from ._result import SampleResult as SampleResult
 from ._sample import sample as sample
+from ._trace import RunTrace as RunTrace
 
 __version__ = "0.1.0"

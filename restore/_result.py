@@ -36,7 +36,9 @@ class SampleResult:
     """What `restore.sample` returns: streamed sums, thinned draws and run facts.
 
     Everything is held in numpy on the host. The main entry points are `estimate`,
-    `normalising_constant`, `tour_statistics`, `ess`, `estimate_draws` and `to_arviz`.
+    `normalising_constant`, `tour_statistics`, `ess`, `estimate_draws` and `to_arviz`;
+    `trace` (a `restore.RunTrace`, or `None`) holds the kill rate and acceptance of each
+    chunk, and `restore.plot` draws all of these.
     """
 
     def __init__(self, **fields: Any):

@@ -24,6 +24,7 @@ PACKAGES = (
     "restore.testing",
     "restore.render",
     "restore.bench",
+    "restore.plot",
     "targets.analytic",
     "targets.mitsuba",
     "targets.numpyro",
