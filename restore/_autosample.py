@@ -381,9 +381,9 @@ def autosample(
         )
         if math.isfinite(report.log_z):
             log_z = report.log_z
-        if best is None or _tail(report) < _tail(best[0]):
+        if best is None or preferred(report, best[0]):
             best = (report, choice.fit, u, log_z)
-        if report.healthy:
+        if report.healthy:  # the final run takes this stage's regeneration
             break
         draws = result.draws.reshape(-1, d)
         weights = result.draw_weights.reshape(-1)
@@ -400,6 +400,16 @@ def autosample(
     return AutoResult(result, sampler, u, stages, total, time.perf_counter() - started, report.healthy)
 
 
+def preferred(report: StageReport, other: StageReport) -> bool:
+    """Whether the final run should take `report`'s regeneration rather than `other`'s: a healthy
+    stage wins; between unhealthy ones, the lighter heavier-tail does."""
+    if report.healthy != other.healthy:
+        return report.healthy
+    return _tail(report) < _tail(other)
+
+
 def _tail(report: StageReport) -> float:
-    return report.duration_k_hat if math.isfinite(report.duration_k_hat) else math.inf
+    """The heavier of a stage's two tail shapes (durations, importance weights): lower is better."""
+    shapes = [k for k in (report.duration_k_hat, report.importance_k_hat) if math.isfinite(k)]
+    return max(shapes) if len(shapes) == 2 else math.inf
 

@@ -52,6 +52,20 @@ def test_stages_are_reported_and_counted(spread):
     assert "AutoResult" in repr(spread)
 
 
+def test_the_final_run_takes_a_healthy_stage():
+    """A healthy stage beats an unhealthy one with a lighter duration tail; otherwise the heavier of the
+    two tail shapes decides."""
+    from restore._autosample import preferred
+
+    def stage(k_t, k_w, healthy):
+        return restore.StageReport(1, "adapt", "product", 4, 1000, 1.0, k_t, k_w, 0.5, 0.0, 0.01, healthy)
+
+    assert preferred(stage(0.1, 0.1, True), stage(-0.2, 0.9, False))
+    assert not preferred(stage(-0.2, 0.9, False), stage(0.1, 0.1, True))
+    assert preferred(stage(0.2, 0.3, False), stage(-0.1, 0.8, False))
+    assert not preferred(stage(0.2, float("nan"), False), stage(0.4, 0.6, False))
+
+
 def test_a_target_without_a_mode_runs():
     """Neal's funnel has no mode (the Laplace recipe raises); autosample must run and be honest."""
     from targets.analytic import Funnel

@@ -26,7 +26,7 @@ class EvidenceConfig:
     Every method runs once per problem and seed, with its own natural budget (the table
     reports what each spent): tempered SMC with `smc_particles` particles and
     `smc_mcmc_steps` HMC moves per temperature; dynesty with `nested_live` live points,
-    stopped after `nested_seconds` of sampling at the latest; Restore's README recipe and
+    stopped after `nested_seconds` of sampling at the latest; Restore's hand-built recipe and
     `restore.autosample` with `restore_lanes` lanes of `restore_steps` steps (the recipe
     finds modes from `restore_starts` uniform starts in the box; `autosample` runs at most
     `restore_stages` adaptive stages). `samplers`, when given,

@@ -61,8 +61,9 @@ def summary_rows(rows: list[dict]) -> list[dict]:
 
 
 def _settings(cfg) -> list[str]:
-    return [
-        f"- **restore-laplace**: the README recipe. `laplace_mixture(..., tails=\"student_t\", df=5)` from {cfg.restore_starts} "
+    """One line per method of the configuration."""
+    lines = [
+        f"- **restore-laplace**: the hand-built recipe. `laplace_mixture(..., tails=\"student_t\", df=5)` from {cfg.restore_starts} "
         f"starts uniform in the box, `RandomWalk(2.38 / sqrt(d))`, `tour_length=10`, {cfg.restore_lanes} lanes x "
         f"{cfg.restore_steps} steps; log Z from the tours. Evaluations include the mode finding, the pilot and the steps "
         "that finish open tours.",
@@ -75,6 +76,8 @@ def _settings(cfg) -> list[str]:
         f"box, default `dlogz`, stopped after {cfg.nested_seconds:g} s of sampling at the latest (`capped`); "
         "log Z = logz + log(box volume), standard error `logzerr`.",
     ]
+    names = [r.name for r in cfg.runners()]
+    return [line for line in lines if any(line.startswith(f"- **{name}**") for name in names)]
 
 
 def markdown(result) -> str:

@@ -1,4 +1,4 @@
-"""Restore in the evidence benchmark: the README's recipe, and the one-call `restore.autosample`."""
+"""Restore in the evidence benchmark: the hand-built recipe, and the one-call `restore.autosample`."""
 
 from __future__ import annotations
 
@@ -41,7 +41,7 @@ def read_result(result, problem, evaluations: int, clock: Stopwatch, caught) -> 
 
 
 class LaplaceRestoreRunner(EvidenceRunner):
-    """Jump Restore as the README teaches a newcomer: a Laplace mixture from uniform starts, a random walk.
+    """Jump Restore with a hand-built regeneration: a Laplace mixture from uniform starts, a random walk.
 
     `num_starts` starts uniform in the problem's box; `laplace_mixture(..., tails="student_t",
     df=5)` at the modes found from them; `RandomWalk(2.38 / sqrt(d))`; `tour_length`; `lanes`
