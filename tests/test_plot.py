@@ -5,7 +5,10 @@ target is zero: those tours end at once with length zero, and must count among t
 shortest in the tour-length distribution.
 """
 
+import subprocess
+import sys
 import warnings
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -29,10 +32,17 @@ def half_normal(x):
 
 @pytest.fixture(scope="module")
 def run():
-    sampler = restore.JumpRestore(half_normal, RandomWalk(1.0), Gaussian(jnp.zeros(1), 2.0), log_rate=np.log(0.5 * np.sqrt(2 * np.pi)) - np.log(4.0))
+    sampler = restore.JumpRestore(
+        half_normal,
+        RandomWalk(1.0),
+        Gaussian(jnp.zeros(1), 2.0),
+        log_rate=np.log(0.5 * np.sqrt(2 * np.pi)) - np.log(4.0),
+    )
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return restore.sample(sampler, jax.random.key(0), num_lanes=32, num_steps=500, progress=False, num_chunks=10, max_draws=32 * 100)
+        return restore.sample(
+            sampler, jax.random.key(0), num_lanes=32, num_steps=500, progress=False, num_chunks=10, max_draws=32 * 100
+        )
 
 
 def test_the_tour_tail_is_the_runs(run):
@@ -77,7 +87,12 @@ def test_every_plot_draws(run):
     assert len(ax.lines) == 2
     kill, accept = plot.traces(run)
     assert kill.get_title() == "kill rate" and len(accept.lines) == 2
-    ax = plot.mode_weights(restore.Estimate(np.array([0.3, 0.7]), np.array([0.01, 0.02])), truth=[0.25, 0.75], others={"other": [0.5, 0.5]}, labels=["a", "b"])
+    ax = plot.mode_weights(
+        restore.Estimate(np.array([0.3, 0.7]), np.array([0.01, 0.02])),
+        truth=[0.25, 0.75],
+        others={"other": [0.5, 0.5]},
+        labels=["a", "b"],
+    )
     assert [t.get_text() for t in ax.get_xticklabels()] == ["a", "b"]
     plt.close("all")
 
@@ -90,3 +105,27 @@ def test_what_cannot_be_plotted(run):
     no_trace = restore.SampleResult(**{**run.__dict__, "trace": None})
     with pytest.raises(ValueError, match="trace"):
         plot.traces(no_trace)
+
+
+def test_matplotlib_is_needed_only_for_figures():
+    code = (
+        "import sys\n"
+        "import restore, restore.plot, restore.render, restore.bench, targets\n"
+        "print('matplotlib' in sys.modules)\n"
+        "sys.modules['matplotlib'] = None  # as if it were not installed\n"
+        "try:\n"
+        "    restore.plot.mode_weights([0.5, 0.5])\n"
+        "except ImportError as err:\n"
+        "    print(err)\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        cwd=Path(__file__).resolve().parents[1],
+        timeout=120,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    imported, message = done.stdout.strip().splitlines()
+    assert imported == "False" and "restore-mcmc[plot]" in message
