@@ -68,7 +68,9 @@ def gpd_fit(exceedances: np.ndarray) -> tuple[float, float]:
     m = 30 + int(math.sqrt(n))
     b = 1.0 - np.sqrt(m / (np.arange(1, m + 1, dtype=np.float64) - 0.5))
     quartile = x[int(n / 4 + 0.5) - 1]
-    b = b / (3.0 * quartile) + 1.0 / x[-1] if quartile > 0 else 1.0 / x[-1] + 0.0 * b
+    if not quartile > 0:  # ties at the threshold: the smallest positive exceedance sets the scale instead
+        quartile = x[x > 0][0]
+    b = b / (3.0 * quartile) + 1.0 / x[-1]
     k = np.log1p(-b[:, None] * x).mean(axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
         profile = n * (np.log(-(b / k)) - k - 1.0)
