@@ -41,5 +41,6 @@ from ._sample import sample as sample
 from ._sampler import AbstractSampler as AbstractSampler
 from ._sampler import RunFacts as RunFacts
 from ._sampler import StepInfo as StepInfo
+from ._trace import RunTrace as RunTrace
 
 __version__ = "0.1.0"

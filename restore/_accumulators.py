@@ -116,7 +116,7 @@ def update_histogram(hist: tuple[Array, Array], durations: Array, mask: Array) -
     """Add completed tour durations to a log10-binned (count, total time) histogram."""
     counts, times = hist
     lo, hi = HISTOGRAM_RANGE
-    safe = jnp.where(durations > 0, durations, 1.0)
+    safe = jnp.where(durations > 0, durations, 10.0**lo)  # a tour of zero length is among the shortest
     position = (jnp.log10(safe) - lo) / (hi - lo) * HISTOGRAM_BINS
     index = jnp.clip(jnp.floor(position), 0, HISTOGRAM_BINS - 1).astype(jnp.int32)
     counts = counts.at[index].add(mask.astype(counts.dtype))

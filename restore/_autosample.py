@@ -12,8 +12,9 @@ target. `autosample` builds `u` in stages, population-Monte-Carlo style:
    run jump Restore with that `u` frozen. Each stage is an exact Restore run; its
    tour-weighted draws are draws of the target, and the next stage is fitted to them.
 3. **Stop** when a stage's tours are healthy: the Pareto shape `k_hat` of the tour
-   durations and of the importance weights is small, so the tours are close to i.i.d.
-   exponential and the error bars can be trusted.
+   durations and of the importance weights is small, no tour outlasted the stage and no
+   handful of tours holds most of the time (`TourStatistics.heavy_tailed`), so the tours
+   are close to i.i.d. exponential and the error bars can be trusted.
 4. **Final run.** A fresh run with the chosen `u` frozen before it starts, with the full
    budget and the user's observables. Its estimates are the result; the stages only
    chose `u`. Because `u` is fixed before the final run begins, its tours are i.i.d. given
@@ -143,8 +144,9 @@ class AutoResult:
     def estimate_draws(self, fn):
         return self.result.estimate_draws(fn)
 
-    def to_arviz(self, resample: bool = True, seed: int = 0):
-        return self.result.to_arviz(resample=resample, seed=seed)
+    def to_arviz(self, resample: bool = True, seed: int = 0, transform=None):
+        """The final run's stored draws in ArviZ (see `SampleResult.to_arviz`)."""
+        return self.result.to_arviz(resample=resample, seed=seed, transform=transform)
 
     def summary(self) -> str:
         """The stages in a table, then the final run's summary."""
@@ -210,21 +212,34 @@ def _user_knowledge(box, scale, loc, prior, dim, dtype):
 
 
 def typical_scale(regeneration: AbstractRegeneration) -> np.ndarray:
-    """Per-coordinate standard deviation within a component: the step scale of local moves."""
+    """Per-coordinate standard deviation within a component: the step scale of local moves.
+
+    For a mixture, the weighted median over components of each coordinate's scale: a few
+    broad components (fitted to seeding chains that had not arrived yet) must not set the
+    step of local moves in narrow modes, where it would reject nearly every move.
+    """
     if isinstance(regeneration, Mixture):
-        weights = np.asarray(regeneration.weights)
-        parts = [typical_scale(c) for c in regeneration.components]
-        return np.sum(weights[:, None] * np.array(parts), axis=0)
+        parts = np.array([typical_scale(c) for c in regeneration.components])
+        return _weighted_median(parts, np.asarray(regeneration.weights))
     if isinstance(regeneration, DiagonalMixture):
-        return np.asarray(jnp.exp(regeneration.log_weights) @ regeneration.scales)
-    if isinstance(regeneration, ProductMixture):
-        return np.sum(np.exp(np.asarray(regeneration.log_weights)) * np.asarray(regeneration.scales), axis=1)
+        return _weighted_median(np.asarray(regeneration.scales), np.exp(np.asarray(regeneration.log_weights)))
+    if isinstance(regeneration, ProductMixture):  # (d, K) scales and log weights, one mixture per coordinate
+        scales, weights = np.asarray(regeneration.scales), np.exp(np.asarray(regeneration.log_weights))
+        return np.array([_weighted_median(s[:, None], w)[0] for s, w in zip(scales, weights, strict=True)])
     for name in ("scale_tril",):
         tril = getattr(regeneration, name, None)
         if tril is not None:
             return np.sqrt(np.sum(np.asarray(tril) ** 2, axis=1))
     draws = np.asarray(regeneration.sample(jax.random.key(0), (2048,)))
     return np.std(draws, axis=0)
+
+
+def _weighted_median(values: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Per column of `values` `(K, d)`, the median under the weights `(K,)`."""
+    order = np.argsort(values, axis=0)
+    cumulative = np.cumsum(weights[order], axis=0) / np.sum(weights)
+    columns = np.arange(values.shape[1])
+    return values[order[np.argmax(cumulative >= 0.5, axis=0), columns], columns]
 
 
 def _evaluations(result: SampleResult, pilot: int) -> int:
@@ -250,6 +265,7 @@ def _stage_report(stage, kind, fit, result: SampleResult, pilot: int, seconds: f
         stats.num_tours >= 100
         and k_t < HEALTHY_DURATION_K
         and not (k_w >= HEALTHY_IMPORTANCE_K)
+        and not stats.heavy_tailed  # no tour outlasted the stage, no handful of tours holds the time
         and result.num_uncovered == 0
         and result.num_invalid == 0
     )
@@ -357,7 +373,7 @@ def autosample(
     else:  # the final run stores no draws; the stages need some to fit to
         stage_draws, stage_thin = min(100_000, num_lanes * 64), None
 
-    best = None  # (k_hat of durations, fit, regeneration, log Z) of the stage with the lightest tail
+    best = None  # (report, fit, regeneration, log Z) of the stage the final run takes (see `preferred`)
     log_z = None
     for stage in range(1, max_stages + 1):
         clock = time.perf_counter()

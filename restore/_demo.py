@@ -10,7 +10,7 @@ import jax
 import numpy as np
 
 from ._estimates import Estimate
-from ._io import save_figure
+from ._io import matplotlib_for, save_figure
 from ._jump_restore import JumpRestore
 from ._mixture_mh import MixtureMH
 from ._sample import sample
@@ -85,9 +85,7 @@ def run_demo(
 
 def plot_demo(outcome: DemoOutcome, path: Path) -> Path:
     """Errors of the mode-weight estimates with 95% intervals, for both samplers."""
-    import matplotlib
-
-    matplotlib.use("Agg")
+    matplotlib_for("the demo's plot")
     import matplotlib.pyplot as plt
 
     k = outcome.truth.size

@@ -8,6 +8,21 @@ from collections.abc import Callable
 from pathlib import Path
 
 
+def matplotlib_for(what: str, backend: str | None = "Agg"):
+    """The `matplotlib` module (with `backend`, when given), or an ImportError that says what to install.
+
+    matplotlib is an optional extra (`plot`; `compare` and `mitsuba` bring it too): figures
+    and PNG images need it, nothing else does.
+    """
+    try:
+        import matplotlib
+    except ImportError as err:
+        raise ImportError(f"{what} needs matplotlib: pip install 'restore-mcmc[plot]'") from err
+    if backend is not None:
+        matplotlib.use(backend)
+    return matplotlib
+
+
 def _file_mode(path: Path) -> int:
     """The permission bits a plain `open(path, "w")` would leave: the old file's, else 0o666 less the umask."""
     try:

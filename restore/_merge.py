@@ -11,6 +11,7 @@ import numpy as np
 from ._accumulators import LaneSums
 from ._result import SampleResult
 from ._tails import TourTails
+from ._trace import merge_traces
 
 # What every part must share for the lanes to be parts of one run.
 _SHARED = ("sampler_name", "is_regenerative", "has_tours", "num_steps", "thin", "weights", "log_rate")
@@ -49,7 +50,7 @@ def merge_results(results: Sequence[SampleResult]) -> SampleResult:
                 f"result {i} stored {other.draws.shape[0]} draws per lane, result 0 stored {first.draws.shape[0]}: "
                 "the thinning followed each part's draws budget; pass the same thin= to every part"
             )
-    concat = lambda *parts: np.concatenate(parts, axis=0)  # noqa: E731
+    concat = lambda *parts: np.concatenate(parts, axis=0)
     sums = LaneSums(**{f: concat(*(np.asarray(getattr(r.sums, f)) for r in results)) for f in LaneSums._fields})
     final_state = jax.tree.map(concat, *(r.final_state for r in results))
     tails = None if first.tails is None else TourTails(*(concat(*parts) for parts in zip(*(r.tails for r in results))))
@@ -67,4 +68,5 @@ def merge_results(results: Sequence[SampleResult]) -> SampleResult:
         unfinished_tours=sum(r.unfinished_tours for r in results),
         wall_time=max(r.wall_time for r in results),
         interrupted=any(r.interrupted for r in results),
+        trace=merge_traces([r.trace for r in results]),
     )

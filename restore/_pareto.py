@@ -49,12 +49,22 @@ def gpd_shape(exceedances: np.ndarray) -> float:
     Returns:
         The shape `k_hat`, shrunk towards 1/2 by PSIS's prior (10 pseudo-observations).
     """
+    return gpd_fit(exceedances)[0]
+
+
+def gpd_fit(exceedances: np.ndarray) -> tuple[float, float]:
+    """`(k_hat, sigma_hat)`: the shape of `gpd_shape` and the GPD scale fitted with it.
+
+    The scale is Zhang and Stephens' `-k / b` at the posterior mean of `b` (before the
+    shape is shrunk), as in PSIS; `S(x) = (1 + k x / sigma)^(-1/k)` is then the fitted
+    survival function of the exceedances.
+    """
     x = np.sort(np.asarray(exceedances, np.float64))
     n = x.size
     if n < 5:
         raise ValueError(f"a GPD fit needs at least 5 exceedances, got {n}")
     if not x[-1] > 0:
-        return 0.0
+        return 0.0, 0.0
     m = 30 + int(math.sqrt(n))
     b = 1.0 - np.sqrt(m / (np.arange(1, m + 1, dtype=np.float64) - 0.5))
     quartile = x[int(n / 4 + 0.5) - 1]
@@ -70,7 +80,7 @@ def gpd_shape(exceedances: np.ndarray) -> float:
     keep = weights >= 10 * np.finfo(np.float64).eps
     b_post = np.sum(b[keep] * weights[keep]) / np.sum(weights[keep])
     k_post = float(np.log1p(-b_post * x).mean())
-    return (n * k_post + 10 * 0.5) / (n + 10)
+    return (n * k_post + 10 * 0.5) / (n + 10), -k_post / b_post
 
 
 def pareto_k(largest: np.ndarray, n: int) -> float:

@@ -5,12 +5,13 @@ from __future__ import annotations
 import dataclasses
 import math
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any, Literal
 
 import jax
 import numpy as np
 
+from ._arviz import to_arviz as arviz_export
 from ._diagnostics import TourStatistics, tour_statistics
 from ._estimates import (
     Estimate,
@@ -25,6 +26,7 @@ from ._observables import Observables
 from ._pareto import k_hat_limit
 from ._sampler import AbstractSampler
 from ._tails import TourTails, duration_k, importance_k, residual_k, select_lanes
+from ._trace import RunTrace
 
 Method = Literal["tours", "lanes"]
 
@@ -38,7 +40,8 @@ class SampleResult:
     """What `restore.sample` returns: streamed sums, thinned draws and run facts.
 
     Everything is held in numpy on the host. The main entry points are `estimate`,
-    `normalising_constant`, `tour_statistics`, `ess`, `estimate_draws` and `to_arviz`.
+    `normalising_constant`, `tour_statistics`, `ess`, `estimate_draws` and `to_arviz`;
+    `restore.plot` draws them.
 
     Attributes:
         sampler_name: the class name of the sampler that ran.
@@ -65,6 +68,7 @@ class SampleResult:
         pilot: the pilot estimate of `Z` that calibrated the rate (`PilotEstimate`), if one did.
         expected_tour_times: per lane, the complete tours' expected total duration over
             `Z` with several phases (`None` with one).
+        trace: the kill rate and acceptance of each chunk (a `restore.RunTrace`), or `None`.
     """
 
     sampler_name: str
@@ -90,9 +94,10 @@ class SampleResult:
     tour_length: tuple[float, ...] | None
     pilot: Any
     expected_tour_times: np.ndarray | None
+    trace: RunTrace | None = None
 
     @classmethod
-    def from_run(cls, *, sampler: AbstractSampler, pilot, observables: Observables, sums, histogram, tails, draws, draw_weights, final_state, num_steps, finishing_steps, thin, weights, wall_time, interrupted, draws_note=None, unfinished_tours=0) -> SampleResult:
+    def from_run(cls, *, sampler: AbstractSampler, pilot, observables: Observables, sums, histogram, tails, draws, draw_weights, final_state, num_steps, finishing_steps, thin, weights, wall_time, interrupted, draws_note=None, unfinished_tours=0, trace=None) -> SampleResult:
         to_np = lambda tree: jax.tree.map(np.asarray, tree)
         facts = sampler.run_facts()
         result = cls(
@@ -119,6 +124,7 @@ class SampleResult:
             tour_length=facts.tour_length,
             pilot=pilot,
             expected_tour_times=sampler.expected_tour_times(final_state.tour, sums.num_tours) if sampler.has_tours else None,
+            trace=trace,
         )
         result._warn()
         return result
@@ -318,33 +324,25 @@ class SampleResult:
         wv = np.einsum("sl,sl...->l...", w, values)
         return lane_ratio(wv, w.sum(axis=0))
 
-    def to_arviz(self, resample: bool = True, seed: int = 0):
-        """The stored draws as `arviz.InferenceData` (chains = lanes).
+    def to_arviz(self, resample: bool = True, seed: int = 0, transform: Callable[[np.ndarray], Mapping[str, np.ndarray]] | None = None):
+        """The stored draws in ArviZ, lanes as chains: an `xarray.DataTree` with ArviZ 1.x, `InferenceData` with 0.x.
 
-        ArviZ expects equally weighted draws: with `resample=True` each lane's draws are
-        resampled in proportion to their weights (systematic resampling), and the weights
-        are kept in `sample_stats` as `weight`.
+        The stored draws are weighted by their holding times. ArviZ expects equally
+        weighted draws: with `resample=True` each lane's draws are resampled in proportion
+        to their weights (systematic resampling), and `sample_stats` holds `weight` (all
+        ones), `source_draw` (the stored draw each copies) and `source_weight`; with
+        `resample=False` the draws are kept as stored and `sample_stats.weight` holds their
+        weights. The attribute `restore_draws` of the groups says which (`"resampled"` or
+        `"weighted"`). R-hat and ESS from ArviZ (`az.rhat`, `az.ess`) treat lanes as chains.
+
+        Arguments:
+            resample: resample the draws to equal weights (default) or keep them weighted.
+            seed: seed of the resampling.
+            transform: optional map from draws `(lanes, n, d)` to named arrays with leading
+                axes `(lanes, n)`, e.g. `targets.numpyro.NumPyroTarget.constrain`; default one
+                variable `"x"`.
         """
-        import arviz as az
-
-        if self.draws.shape[0] == 0:
-            raise ValueError("no draws were stored: pass max_draws > 0 (or thin) to restore.sample")
-        draws = np.swapaxes(self.draws, 0, 1)  # (lane, draw, d)
-        weights = np.swapaxes(self.draw_weights, 0, 1).astype(np.float64)
-        if resample:
-            rng = np.random.default_rng(seed)
-            n = draws.shape[1]
-            out = np.empty_like(draws)
-            for lane in range(draws.shape[0]):
-                w = weights[lane]
-                if w.sum() <= 0:
-                    out[lane] = draws[lane]
-                    continue
-                cdf = np.cumsum(w / w.sum())
-                idx = np.searchsorted(cdf, (rng.uniform() + np.arange(n)) / n)
-                out[lane] = draws[lane, np.minimum(idx, n - 1)]
-            draws = out
-        return az.from_dict(posterior={"x": draws}, sample_stats={"weight": weights})
+        return arviz_export(self.draws, self.draw_weights, resample=resample, seed=seed, transform=transform, attrs={"sampler": self.sampler_name})
 
     # ------------------------------------------------------------------ reporting
     def _warn(self) -> None:

@@ -53,6 +53,7 @@ from ._sharding import (
 )
 from ._tails import TourTails, init_tails, keep_largest, tail_depth
 from ._tour_records import TourRecords, emptied, has_room, init_records, record, records_per_lane
+from ._trace import chunk_totals, run_trace
 from ._validation import check_integer, check_interval
 
 Weights = Literal["rao_blackwell", "time"]
@@ -519,10 +520,13 @@ def sample(
         host_sums, host_histogram, records = to_host((advanced.sums, advanced.histogram, advanced.tours))  # waits for the chunk
         sums, histogram = drain_sums(run.sums, host_sums), drain_histogram(run.histogram, host_histogram)
         tails = keep_largest(run.tails, records)  # the chunk's tours join each lane's largest
+        if not finishing:
+            trace_rows.append(chunk_totals(host_sums, advanced.step, steps_taken))
         return _Run(_restart(advanced, sharding), sums, histogram, tails), int(steps_taken)
 
     start, interrupted = time.perf_counter(), False
-    elapsed = lambda: spent + time.perf_counter() - start  # noqa: E731
+    trace_rows: list[tuple] = []  # per-chunk totals, from the sums each chunk drains anyway
+    elapsed = lambda: spent + time.perf_counter() - start
     label = f"{type(sampler).__name__}: {num_lanes} lanes"
     if sharding is not None:
         label += f" on {sharding.num_devices} devices"
@@ -591,4 +595,5 @@ def sample(
         interrupted=interrupted,
         draws_note=draws_note,
         unfinished_tours=unfinished,
+        trace=run_trace(trace_rows),
     )

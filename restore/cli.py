@@ -70,7 +70,10 @@ def demo(
         f"shape of the tail of the terms each estimate sums: at or above {restore.K_HAT_LIMIT} (fewer terms: lower) the "
         "error bar is not trusted and the estimate is marked [red]*[/]."
     )
-    console.print(f"Plot written to {plot_demo(outcome, out)}")
+    try:
+        console.print(f"Plot written to {plot_demo(outcome, out)}")
+    except ImportError as err:  # matplotlib is an optional extra
+        console.print(f"No plot: {err}")
 
 
 def _k_hat(estimate, i: int) -> str:

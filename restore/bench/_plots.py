@@ -7,16 +7,14 @@ from pathlib import Path
 
 import numpy as np
 
-from .._io import save_figure
+from .._io import matplotlib_for, save_figure
 from ._metrics import pooled_rms
 
 _STYLE = {"restore": ("C0", "o"), "mh": ("C3", "s"), "chains": ("C5", "v"), "emcee": ("C2", "^"), "blackjax": ("C4", "D"), "exact": ("0.4", "x")}
 
 
 def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
+    matplotlib_for("the comparison's plots")
     import matplotlib.pyplot as plt
 
     return plt

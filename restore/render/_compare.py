@@ -20,7 +20,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from .._io import save_figure, write_text
+from .._io import matplotlib_for, save_figure, write_text
 from ._driver import render
 from ._methods import GRADIENT_METHODS, METHODS, make_renderer
 from ._metrics import l1, mape, mrse, mse, relative_mse, variance_across
@@ -248,9 +248,7 @@ def _crop_window(reference: np.ndarray) -> tuple[slice, slice]:
 
 def plot_scene(comparison: RenderComparison, scene: str, path: Path) -> Path | None:
     """Reference and first-realisation images, zoomed crops, and relative MSE against time."""
-    import matplotlib
-
-    matplotlib.use("Agg")
+    matplotlib_for("the rendering comparison's figures")
     import matplotlib.patches
     import matplotlib.pyplot as plt
 

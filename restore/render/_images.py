@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._io import atomic_write
+from .._io import atomic_write, matplotlib_for
 
 IMAGE_SUFFIXES = (".exr", ".npy", ".png")
 
@@ -51,6 +51,7 @@ def save_image(path: str | os.PathLike, image, exposure: float = 0.0) -> Path:
     if suffix == ".npy":
         return atomic_write(path, lambda tmp: _save_npy(tmp, array))
     if suffix == ".png":
+        matplotlib_for("writing PNG images", backend=None)
         import matplotlib.image
 
         return atomic_write(path, lambda tmp: matplotlib.image.imsave(tmp, tonemap(array, exposure), format="png"))

@@ -1,7 +1,9 @@
 """The documentation site builds with no warnings, and its API reference names every public object.
 
-The build needs the `[docs]` extra (mkdocs-material, mkdocstrings[python]); without it
-these tests fail rather than skip, so that a missing extra is noticed.
+The build needs the `[docs]` extra (mkdocs-material, mkdocstrings[python], mkdocs-jupyter,
+nbclient); without it these tests fail rather than skip, so that a missing extra is noticed.
+The build executes every notebook in `examples/` with small settings (docs/hooks/notebooks.py)
+and fails on a cell that raises: this is where the notebooks run in the test suite.
 """
 
 import ast
@@ -10,6 +12,8 @@ import re
 import subprocess
 import sys
 from pathlib import Path
+
+import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 API = ROOT / "docs" / "api"
@@ -24,8 +28,10 @@ PACKAGES = (
     "restore.testing",
     "restore.render",
     "restore.bench",
+    "restore.plot",
     "targets.analytic",
     "targets.mitsuba",
+    "targets.numpyro",
 )
 
 #: `::: identifier` lines of mkdocstrings, which render one object (and its members).
@@ -75,6 +81,7 @@ def test_every_package_is_scanned():
         assert exported_names(package), f"found no public names in {package}/__init__.py"
 
 
+@pytest.mark.slow
 def test_site_builds_strictly(tmp_path):
     env = dict(os.environ, NO_MKDOCS_2_WARNING="1")
     command = [sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir", str(tmp_path / "site")]
@@ -84,3 +91,8 @@ def test_site_builds_strictly(tmp_path):
         f"--- stdout ---\n{done.stdout}\n--- stderr ---\n{done.stderr}"
     )
     assert (tmp_path / "site" / "api" / "restore" / "index.html").is_file()
+    for notebook in sorted((ROOT / "examples").glob("*.ipynb")):  # executed: its pages show outputs
+        page = (tmp_path / "site" / "examples" / notebook.stem / "index.html").read_text(encoding="utf-8")
+        assert "jp-OutputArea-output" in page, f"{notebook.name} was rendered without outputs"
+    quick_start = (tmp_path / "site" / "examples" / "quick_start" / "index.html").read_text(encoding="utf-8")
+    assert "data:image/png;base64" in quick_start, "the quick-start notebook's figures are missing"

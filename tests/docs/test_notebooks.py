@@ -1,83 +1,65 @@
-"""The example notebooks run top to bottom with small settings, and are stored without outputs.
+"""The example notebooks: stored without outputs, run by the documentation build, listed in its navigation.
 
-Each notebook in `examples/` is executed with nbclient in a fresh kernel of this Python
-(`sys.executable`), with `RESTORE_NOTEBOOK_SMALL=1` (small settings), `MPLBACKEND=Agg` and
-this process's `XLA_FLAGS` at optimisation level 0, in a temporary working directory so that nothing lands in the
-repository. A cell that raises fails the test with that cell's error.
+The strict documentation build (`tests/test_docs.py`) executes every notebook in
+`examples/` with small settings through the hook `docs/hooks/notebooks.py` and fails on a
+cell that raises, so the notebooks are run once per test session, there. The tests here
+check the hook's executor itself (a broken cell fails, the kernel is this Python) on tiny
+notebooks, and what needs no kernel.
 """
 
-import json
-import os
-import re
+import importlib.util
 import sys
 from pathlib import Path
 
 import nbformat
 import pytest
-from jupyter_client.kernelspec import KernelSpecManager
-from jupyter_client.manager import KernelManager
-from nbclient import NotebookClient
-from nbclient.exceptions import CellExecutionError, CellTimeoutError, DeadKernelError
 
-EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
+ROOT = Path(__file__).resolve().parents[2]
+EXAMPLES = ROOT / "examples"
 NOTEBOOKS = sorted(EXAMPLES.glob("*.ipynb"))
-CELL_TIMEOUT = 300  # seconds per cell
-KERNEL_NAME = "restore-notebooks"
-ANSI = re.compile(r"\x1b\[[0-9;]*m")  # colours in IPython tracebacks
 
 
-def _kernel_manager(spec_dir: Path) -> KernelManager:
-    """A kernel of this very interpreter, whatever kernel specs are installed elsewhere."""
-    spec = spec_dir / KERNEL_NAME
-    spec.mkdir(parents=True)
-    env = {"RESTORE_NOTEBOOK_SMALL": "1", "MPLBACKEND": "Agg"}
-    # Small notebooks spend most of their time compiling: XLA's backend optimisation level 0
-    # compiles them about a third faster, and their short runs barely notice the slower code.
-    flags = re.sub(r"--xla_backend_optimization_level=\d+", "", os.environ.get("XLA_FLAGS", ""))
-    env["XLA_FLAGS"] = (flags + " --xla_backend_optimization_level=0").strip()
-    kernel = {
-        "argv": [sys.executable, "-m", "ipykernel_launcher", "-f", "{connection_file}"],
-        "display_name": "restore notebooks",
-        "language": "python",
-        "env": env,
-    }
-    (spec / "kernel.json").write_text(json.dumps(kernel))
-    return KernelManager(kernel_name=KERNEL_NAME, kernel_spec_manager=KernelSpecManager(kernel_dirs=[str(spec_dir)]))
+def _hook():
+    spec = importlib.util.spec_from_file_location("restore_docs_notebooks", ROOT / "docs" / "hooks" / "notebooks.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _notebook(*sources, tmp_path):
+    path = tmp_path / "tiny.ipynb"
+    nbformat.write(nbformat.v4.new_notebook(cells=[nbformat.v4.new_code_cell(s) for s in sources]), path)
+    return path
 
 
 def test_there_are_notebooks():
     assert NOTEBOOKS, f"no notebooks in {EXAMPLES}"
+    assert [p.name for p in _hook().notebooks()] == [p.name for p in NOTEBOOKS]
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
-def test_notebook_runs(path, tmp_path):
-    notebook = nbformat.read(path, as_version=4)
-    workdir = tmp_path / "work"
-    workdir.mkdir()
-    client = NotebookClient(
-        notebook,
-        km=_kernel_manager(tmp_path / "kernels"),
-        timeout=CELL_TIMEOUT,
-        startup_timeout=120,
-        resources={"metadata": {"path": str(workdir)}},
+def test_every_notebook_is_in_the_navigation():
+    nav = (ROOT / "mkdocs.yml").read_text(encoding="utf-8")
+    missing = [p.name for p in NOTEBOOKS if f"examples/{p.name}" not in nav]
+    assert not missing, f"notebooks missing from the nav of mkdocs.yml: {missing}"
+
+
+def test_the_executor_runs_this_python_in_small_mode(tmp_path):
+    path = _notebook(
+        "import os, sys; print(sys.executable); print(sys.prefix); print(os.environ['RESTORE_NOTEBOOK_SMALL'])",
+        tmp_path=tmp_path,
     )
-    try:
-        client.execute()
-    except CellExecutionError as error:  # the failing cell's source and traceback
-        pytest.fail(f"{path.name} failed:\n{ANSI.sub('', str(error))}", pytrace=False)
-    except (CellTimeoutError, DeadKernelError) as error:
-        pytest.fail(f"{path.name} did not finish: {type(error).__name__}: {error}", pytrace=False)
-    printed = [o for cell in notebook.cells if cell.cell_type == "code" for o in cell.outputs if o.get("name") == "stdout"]
-    assert printed, f"{path.name} ran but printed nothing"
+    notebook = _hook().execute_notebook(path, tmp_path / "out.ipynb", tmp_path / "scratch")
+    executable, prefix, small = notebook.cells[0].outputs[0]["text"].splitlines()
+    assert (executable, prefix, small) == (sys.executable, sys.prefix, "1")
+    assert nbformat.read(tmp_path / "out.ipynb", as_version=4).cells[0].outputs  # the executed copy
 
 
-def test_the_kernel_is_this_python(tmp_path):
-    """The kernel runs this interpreter in this environment (the virtual environment's packages)."""
-    notebook = nbformat.v4.new_notebook(cells=[nbformat.v4.new_code_cell("import sys; print(sys.executable); print(sys.prefix)")])
-    NotebookClient(notebook, km=_kernel_manager(tmp_path / "kernels"), timeout=60, startup_timeout=120).execute()
-    executable, prefix = notebook.cells[0].outputs[0]["text"].splitlines()
-    assert (executable, prefix) == (sys.executable, sys.prefix)
+def test_a_broken_cell_fails_with_its_error(tmp_path):
+    hook = _hook()
+    path = _notebook("print('first cell runs')", "x = 1 / 0", tmp_path=tmp_path)
+    with pytest.raises(hook.NotebookError, match="ZeroDivisionError"):
+        hook.execute_notebook(path, tmp_path / "out.ipynb", tmp_path / "scratch")
+    assert not (tmp_path / "out.ipynb").exists()
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])

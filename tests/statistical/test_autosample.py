@@ -96,3 +96,37 @@ def test_what_the_user_knows_is_checked():
         restore.autosample(logp, key, prior="normal")
     with pytest.raises(ValueError, match="defensive"):
         restore.autosample(logp, key, prior=StudentT(jnp.zeros(2)), defensive=1.5)
+
+
+def test_local_steps_follow_the_typical_component_not_the_broadest():
+    from restore._autosample import typical_scale
+    from restore.regeneration import DiagonalMixture, Mixture
+
+    # Most of the weight in narrow components, a fifth in one broad component (seeding chains
+    # that had not arrived yet): the step of local moves must fit the narrow ones.
+    scales = np.array([[0.05, 0.1]] * 4 + [[5.0, 8.0]])
+    weights = np.array([0.2, 0.2, 0.2, 0.2, 0.2])
+    narrow = DiagonalMixture(weights, np.zeros((5, 2)), scales)
+    np.testing.assert_allclose(typical_scale(narrow), [0.05, 0.1])
+    mixed = Mixture([StudentT(jnp.zeros(2), 0.01), StudentT(jnp.zeros(2), 100.0)], jnp.array([0.7, 0.3]))
+    np.testing.assert_allclose(typical_scale(mixed), [0.1, 0.1])
+
+
+def test_a_stage_whose_tours_outlast_it_is_not_healthy():
+    from types import SimpleNamespace
+
+    from restore._autosample import _stage_report
+    from restore._diagnostics import TourStatistics
+
+    def stage(unfinished):
+        stats = TourStatistics(5000, 5.0, 0.1, 5.0, 2500.0, 0.06, 60.0, 0.01, unfinished > 0, 0.05, 0.5, unfinished)
+        log_z = restore.LogEstimate(np.asarray(0.0), np.asarray(0.01), np.asarray(0.1), 0.5)
+        result = SimpleNamespace(
+            tour_statistics=lambda: stats, normalising_constant=lambda method="tours": log_z,
+            num_uncovered=0, num_invalid=0, num_lanes=64, num_steps=100, finishing_steps=10,
+        )  # fmt: skip
+        fit = SimpleNamespace(family="diagonal", num_components=2)
+        return _stage_report(1, "adapt", fit, result, 0, 1.0)
+
+    assert stage(0).healthy
+    assert not stage(3).healthy  # light-looking k_hat, but the longest tours are missing from it

@@ -53,6 +53,8 @@ def test_a_run_split_over_lanes_and_merged_is_the_same_run():
     assert merged.num_lanes == 12
     assert_same_run(whole, merged)
     np.testing.assert_allclose(merged.histogram[1], whole.histogram[1], rtol=1e-12)
+    for name in ("step", "lane_steps", "time", "accepted", "regenerations"):  # the per-chunk trace adds up too
+        np.testing.assert_allclose(getattr(merged.trace, name), getattr(whole.trace, name), rtol=1e-12, err_msg=name)
     for name in ("x", "x**2"):
         np.testing.assert_allclose(merged.estimate(name).value, whole.estimate(name).value, rtol=1e-12)
     assert float(merged.normalising_constant().value) == pytest.approx(float(whole.normalising_constant().value), rel=1e-12)
