@@ -15,7 +15,8 @@ demo: $(VENV)/.installed
 	$(BIN)/restore demo
 
 test: $(VENV)/.installed
-	$(BIN)/pytest -n 2 -q
+	# one file per worker: a module-scoped fixture (a benchmark run, a shared sample) is computed once
+	$(BIN)/pytest -n 2 --dist loadfile -q
 
 # ruff (style and likely bugs), mypy (types) and import-linter (the layers and no import cycles)
 lint: $(VENV)/.installed

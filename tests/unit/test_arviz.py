@@ -4,6 +4,8 @@ Runs with ArviZ 0.x (`InferenceData`) and 1.x (`xarray.DataTree`): both give
 `data.posterior`, `data.sample_stats`, and accept `az.rhat` / `az.ess`.
 """
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -53,7 +55,7 @@ def test_rhat_and_ess_from_arviz(run):
     ess = np.asarray(az.ess(data)["x"])
     assert np.all(ess > 500) and np.all(ess < 32 * run.draws.shape[0])
     # Lanes stay chains: stuck lanes (half of them moved away) are seen by R-hat
-    stuck = restore.SampleResult(draws=run.draws + 3.0 * (np.arange(32) < 16)[None, :, None], draw_weights=run.draw_weights, sampler_name="stuck")
+    stuck = dataclasses.replace(run, draws=run.draws + 3.0 * (np.arange(32) < 16)[None, :, None], sampler_name="stuck")
     assert _max(az.rhat(stuck.to_arviz())) > 1.5
 
 
@@ -73,7 +75,7 @@ def test_resampling_follows_the_weights():
     np.testing.assert_array_equal(index[2], [0, 1, 2, 3])  # no weight at all: kept as stored
 
 
-def test_no_draws_no_export():
-    empty = restore.SampleResult(draws=np.zeros((0, 4, 2)), draw_weights=np.zeros((0, 4)), sampler_name="empty")
+def test_no_draws_no_export(run):
+    empty = dataclasses.replace(run, draws=np.zeros((0, 4, 2)), draw_weights=np.zeros((0, 4)), sampler_name="empty")
     with pytest.raises(ValueError, match="max_draws"):
         empty.to_arviz()
