@@ -14,8 +14,9 @@ $(VENV)/.installed: pyproject.toml
 demo: $(VENV)/.installed
 	$(BIN)/restore demo
 
+# One file per worker (--dist loadfile): a module-scoped fixture (a benchmark run, a shared
+# sample) is then computed once, not once per worker.
 test: $(VENV)/.installed
-	# one file per worker: a module-scoped fixture (a benchmark run, a shared sample) is computed once
 	$(BIN)/pytest -n 2 --dist loadfile -q
 
 # ruff (style and likely bugs), mypy (types) and import-linter (the layers and no import cycles)

@@ -69,17 +69,13 @@ def cycle(tour: Array, num_phases: int) -> Array:
 
 
 class AbstractRestore(AbstractSampler):
-    """Shared machinery of `Restore` and `JumpRestore`: init, step, calibration.
-
-    `tour_length` is kept as an array (not a static field), so that samplers that differ
-    only in their tour length share one compiled program once calibrated.
-    """
+    """Shared machinery of `Restore` and `JumpRestore`: init, step, calibration."""
 
     logdensity: Callable[[Array], Array]
     dynamics: tuple[AbstractDynamics, ...]
     transfers: tuple[AbstractTransfer, ...]
     log_rate: Float[Array, "*K"] | None
-    tour_length: Float[Array, " K"] | None
+    tour_length: tuple[float, ...] | None = eqx.field(static=True)
     bound: tuple[float | None, ...] = eqx.field(static=True)
     phase_rule: Callable[[Array], Array] | None = eqx.field(static=True)
     pilot_size: int = eqx.field(static=True)
@@ -142,8 +138,7 @@ class AbstractRestore(AbstractSampler):
             lengths = _as_phases(tour_length, "tour_length")
             if len(lengths) not in (1, K):
                 raise ValueError(f"tour_length must be a scalar or one value per phase ({K})")
-            lengths = tuple(check_positive(v, "tour_length") for v in (lengths * K if len(lengths) == 1 else lengths))
-            tour_length = jnp.asarray(lengths, jnp.result_type(float))
+            tour_length = tuple(check_positive(v, "tour_length") for v in (lengths * K if len(lengths) == 1 else lengths))
         bounds = _as_phases(bound, "bound")
         if len(bounds) not in (1, K):
             raise ValueError(f"bound must be a scalar or one value per phase ({K})")
@@ -253,14 +248,12 @@ class AbstractRestore(AbstractSampler):
         if self.log_rate is not None:
             return self, None
         pilot = pilot_log_z(key, self.logdensity, self.transfers[0].reference, self.pilot_size)
-        lengths = np.asarray(self.tour_length, np.float64)
-        rates = jnp.asarray(pilot.log_z - np.log(lengths), self.tour_length.dtype)  # type: ignore[union-attr]
+        rates = jnp.asarray([pilot.log_z - math.log(t) for t in self.tour_length])  # type: ignore[union-attr]
         rates = rates[0] if self.num_phases == 1 else rates
         return eqx.tree_at(lambda s: s.log_rate, self, rates, is_leaf=lambda x: x is None), pilot
 
     def run_facts(self) -> RunFacts:
-        lengths = None if self.tour_length is None else tuple(float(t) for t in np.asarray(self.tour_length))
-        return RunFacts(self.effective_log_rate, lengths)
+        return RunFacts(self.effective_log_rate, self.tour_length)
 
     def _require_rate(self) -> Array:
         if self.log_rate is None:
