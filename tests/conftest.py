@@ -19,7 +19,12 @@ KINDS = ("unit", "statistical", "properties", "integration", "docs")
 
 
 def pytest_collection_modifyitems(config, items):
-    """Mark each test with the kind of the folder it is in."""
+    """Mark each test with the kind of the folder it is in.
+
+    Tests that use a module-scoped fixture (a benchmark run, a shared sample) are also put
+    in one `xdist_group` per module, so that with `--dist loadgroup` the fixture is
+    computed by one worker only, while all other tests are spread one by one.
+    """
     from pathlib import Path
 
     import pytest
@@ -28,3 +33,7 @@ def pytest_collection_modifyitems(config, items):
         kind = Path(str(item.path)).parent.name
         if kind in KINDS:
             item.add_marker(getattr(pytest.mark, kind))
+        fixtures = getattr(item, "_fixtureinfo", None)
+        definitions = fixtures.name2fixturedefs.values() if fixtures is not None else ()
+        if any(defs and defs[-1].scope == "module" for defs in definitions):
+            item.add_marker(pytest.mark.xdist_group(name=str(item.path)))
