@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import glob
 import os
 import tempfile
 from collections.abc import Callable
@@ -55,7 +56,9 @@ def atomic_write(path: str | os.PathLike, write: Callable[[Path], object]) -> Pa
 
     The rename is atomic on POSIX file systems, so `path` holds either its old content or
     the new one, never a mixture. If `write` raises (or the process is interrupted), the
-    temporary file is removed and `path` is left as it was. The new file gets the mode of
+    temporary file is removed and `path` is left as it was; a temporary file left by a
+    process killed outright (SIGKILL) during an earlier write is removed by the next
+    write. The new file gets the mode of
     the file it replaces, or the usual `0o666` less the umask for a new file (not the
     private `0o600` of a temporary file).
 
@@ -69,6 +72,8 @@ def atomic_write(path: str | os.PathLike, write: Callable[[Path], object]) -> Pa
     folder = path.parent if str(path.parent) else Path(".")
     if not folder.is_dir():
         raise FileNotFoundError(f"cannot write {path}: folder {folder} does not exist")
+    for stale in folder.glob(f".{glob.escape(path.name)}.*.tmp{glob.escape(path.suffix)}"):
+        stale.unlink(missing_ok=True)  # left by a process killed outright while it wrote `path`
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp" + path.suffix, dir=folder)
     os.close(fd)
     try:
