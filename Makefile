@@ -14,10 +14,10 @@ $(VENV)/.installed: pyproject.toml
 demo: $(VENV)/.installed
 	$(BIN)/restore demo
 
-# --dist loadgroup: the tests of a module with a module-scoped fixture (a benchmark run, a
-# shared sample) go to one worker, so the fixture is computed once (tests/conftest.py).
+# One file per worker (--dist loadfile): a module-scoped fixture (a benchmark run, a shared
+# sample) is then computed once, not once per worker.
 test: $(VENV)/.installed
-	$(BIN)/pytest -n 2 --dist loadgroup -q
+	$(BIN)/pytest -n 2 --dist loadfile -q
 
 # ruff (style and likely bugs), mypy (types) and import-linter (the layers and no import cycles)
 lint: $(VENV)/.installed
