@@ -15,9 +15,11 @@ demo: $(VENV)/.installed
 	$(BIN)/restore demo
 
 # One file per worker (--dist loadfile): a module-scoped fixture (a benchmark run, a shared
-# sample) is then computed once, not once per worker.
+# sample) is then computed once, not once per worker. Files go out in collection order
+# (--no-loadscope-reorder), so tests/docs, whose one long test builds the site and runs
+# the notebooks, starts first instead of running alone at the end.
 test: $(VENV)/.installed
-	$(BIN)/pytest -n 2 --dist loadfile -q
+	$(BIN)/pytest -n 2 --dist loadfile --no-loadscope-reorder -q
 
 # ruff (style and likely bugs), mypy (types) and import-linter (the layers and no import cycles)
 lint: $(VENV)/.installed
