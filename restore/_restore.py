@@ -232,11 +232,6 @@ class AbstractRestore(AbstractSampler):
     def uses_gradient(self) -> bool:
         return any(d.uses_gradient for d in self.dynamics)
 
-    @property
-    def needs_calibration(self) -> bool:
-        """Built with a `tour_length` and not calibrated yet: `calibrate` sets the rate."""
-        return self.log_rate is None
-
     def calibrate(self, key: PRNGKeyArray) -> tuple[AbstractRestore, PilotEstimate | None]:
         """The sampler with `log_rate` set from `tour_length` by a pilot estimate of `Z`, and the pilot.
 

@@ -419,7 +419,7 @@ def sample(
         )
 
     key_pilot, key_init, key_run = jax.random.split(key, 3)
-    sampler, pilot = sampler.calibrate(key_pilot) if sampler.needs_calibration else (sampler, None)
+    sampler, pilot = sampler.calibrate(key_pilot)
     dim = sampler.dim
     if positions is not None:
         try:

@@ -65,12 +65,10 @@ class RunFacts(NamedTuple):
     Attributes:
         log_rate: `log c` with the mean tour duration `Z / c` (`None` without tours).
         tour_length: the mean tour duration the rate was calibrated for, if it was.
-        pilot: the pilot estimate of `Z` that calibrated the rate, if one did.
     """
 
     log_rate: float | None = None
     tour_length: tuple[float, ...] | None = None
-    pilot: Any = None
 
 
 class AbstractSampler(eqx.Module):
@@ -110,14 +108,9 @@ class AbstractSampler(eqx.Module):
         """Tours start independently of the past: tour-based standard errors are valid."""
         return False
 
-    @property
-    def needs_calibration(self) -> bool:
-        """The sampler has a tour length but no rate yet: `calibrate` must run first."""
-        return False
-
     def calibrate(self, key: PRNGKeyArray) -> tuple[AbstractSampler, Any]:
-        """The sampler ready to run and the pilot run that calibrated it: `(self, None)`
-        unless `needs_calibration`."""
+        """The sampler ready to run and the pilot run that calibrated it (`(self, None)` for a
+        sampler that needs no calibration)."""
         return self, None
 
     def run_facts(self) -> RunFacts:
