@@ -52,6 +52,10 @@ class JumpRestore(AbstractRestore):
         tour_length: mean tour duration `T > 0`.
         local_rate: rate `r > 0` of local moves (default 1).
         pilot_size: number of regeneration draws of the pilot estimate of `Z`.
+        has_aux: `logdensity` returns a pair `(log density, aux)`, as with
+            `jax.value_and_grad(..., has_aux=True)`; `aux` (any pytree of arrays) is kept in
+            the state and reported in `StepInfo.aux` for the state each step weighs (a
+            renderer splats the colour of a light path this way, at no second evaluation).
     """
 
     def __init__(
@@ -64,14 +68,15 @@ class JumpRestore(AbstractRestore):
         tour_length: float | None = None,
         local_rate: float = 1.0,
         pilot_size: int = 4096,
+        has_aux: bool = False,
     ):
-        check_parts(logdensity, local, regeneration)
+        check_parts(logdensity, local, regeneration, has_aux=has_aux)
         if log_rate is not None and getattr(log_rate, "ndim", 0) != 0:
             raise ValueError(f"log_rate must be a scalar, got shape {log_rate.shape}")  # type: ignore[attr-defined]
         if local_rate is None:
             raise TypeError("local_rate must be a positive number (the rate r of local moves), got None")
         dynamics = Jump(local, check_positive(local_rate, "local_rate"))
-        self._setup(logdensity, dynamics, Independent(regeneration), log_rate, tour_length, None, None, pilot_size)
+        self._setup(logdensity, dynamics, Independent(regeneration), log_rate, tour_length, None, None, pilot_size, has_aux)
 
     @property
     def local(self) -> AbstractLocalKernel:

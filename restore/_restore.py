@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from typing import ClassVar, NamedTuple
+from typing import Any, ClassVar, NamedTuple
 
 import equinox as eqx
 import jax
@@ -19,6 +19,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
 from ._point import Point, evaluate
+from ._random import log_uniform
 from ._rate import (
     PilotEstimate,
     kill_log_probability,
@@ -47,6 +48,7 @@ class RestoreState(NamedTuple):
         tour: index of the current tour in this lane.
         pending: a diffusion tour was just killed at `position`; the next step draws the
             start of the next tour (always false for jump dynamics).
+        aux: the log density's extra output at `position` (`has_aux`), else `None`.
     """
 
     position: Float[Array, " d"]
@@ -57,6 +59,7 @@ class RestoreState(NamedTuple):
     phase: Int[Array, ""]
     tour: Int[Array, ""]
     pending: Bool[Array, ""]
+    aux: Any = None
 
 
 def _as_phases(value, name: str) -> tuple:
@@ -79,11 +82,12 @@ class AbstractRestore(AbstractSampler):
     bound: tuple[float | None, ...] = eqx.field(static=True)
     phase_rule: Callable[[Array], Array] | None = eqx.field(static=True)
     pilot_size: int = eqx.field(static=True)
+    has_aux: bool = eqx.field(static=True)
 
     has_tours: ClassVar[bool] = True
 
     # ------------------------------------------------------------------ construction
-    def _setup(self, logdensity, dynamics, transfers, log_rate, tour_length, bound, phase_rule, pilot_size):
+    def _setup(self, logdensity, dynamics, transfers, log_rate, tour_length, bound, phase_rule, pilot_size, has_aux=False):
         dynamics, transfers = _as_phases(dynamics, "dynamics"), _as_phases(transfers, "transfer")
         K = max(len(dynamics), len(transfers))
         for name, parts in (("dynamics", dynamics), ("transfer", transfers)):
@@ -104,7 +108,7 @@ class AbstractRestore(AbstractSampler):
         if len(dims) > 1:
             raise ValueError(f"the transfer kernels live in different dimensions {sorted(dims)}")
         dim = dims.pop()
-        check_logdensity(logdensity, dim, with_grad=any(d.uses_gradient for d in dynamics))
+        check_logdensity(logdensity, dim, with_grad=any(d.uses_gradient for d in dynamics), has_aux=has_aux)
         for d, t in zip(dynamics, transfers):
             d.check_dim(dim)
             if not d.is_invariant and not t.is_independent:
@@ -161,6 +165,7 @@ class AbstractRestore(AbstractSampler):
         self.bound = bounds
         self.phase_rule = phase_rule
         self.pilot_size = int(pilot_size)
+        self.has_aux = bool(has_aux)
 
     # ------------------------------------------------------------------ facts
     @property
@@ -178,6 +183,13 @@ class AbstractRestore(AbstractSampler):
         """
         reference = self.transfers[0].reference
         return jax.eval_shape(reference.sample, jax.random.key(0)).dtype
+
+    @property
+    def log_value(self) -> Callable[[Array], Array]:
+        """The log density's value alone (what the local dynamics and the pilot use)."""
+        if not self.has_aux:
+            return self.logdensity
+        return lambda x: self.logdensity(x)[0]
 
     @property
     def num_phases(self) -> int:
@@ -242,7 +254,7 @@ class AbstractRestore(AbstractSampler):
         """
         if self.log_rate is not None:
             return self, None
-        pilot = pilot_log_z(key, self.logdensity, self.transfers[0].reference, self.pilot_size)
+        pilot = pilot_log_z(key, self.log_value, self.transfers[0].reference, self.pilot_size)
         rates = jnp.asarray([pilot.log_z - math.log(t) for t in self.tour_length])  # type: ignore[union-attr]
         rates = rates[0] if self.num_phases == 1 else rates
         return eqx.tree_at(lambda s: s.log_rate, self, rates, is_leaf=lambda x: x is None), pilot
@@ -278,7 +290,7 @@ class AbstractRestore(AbstractSampler):
             if self.dynamics[k].is_invariant:
                 adjoint = jnp.zeros((), point.logdensity.dtype)
             else:
-                adjoint = self.dynamics[k].adjoint_ratio(self.logdensity, point).astype(point.logdensity.dtype)
+                adjoint = self.dynamics[k].adjoint_ratio(self.log_value, point).astype(point.logdensity.dtype)
             return log_q, jnp.atleast_1d(log_rates)[k], adjoint
 
         log_q, log_rate, adjoint = self._by_phase(phase, one)
@@ -302,10 +314,12 @@ class AbstractRestore(AbstractSampler):
         else:
             position = check_point(position, self.dim, "position", finite=True)
         position = position.astype(self.dtype)
-        point, invalid = evaluate(self.logdensity, position, self.uses_gradient)
+        point, invalid = evaluate(self.logdensity, position, self.uses_gradient, self.has_aux)
         point, _, _, log_kill, adjoint = self._terms(phase, point, invalid, log_rates)
         zero = jnp.zeros((), jnp.int32)
-        return RestoreState(point.position, point.logdensity, point.grad, log_kill, adjoint, phase, zero, jnp.zeros((), bool))
+        return RestoreState(
+            point.position, point.logdensity, point.grad, log_kill, adjoint, phase, zero, jnp.zeros((), bool), point.aux
+        )
 
     def step(self, key: PRNGKeyArray, state: RestoreState) -> tuple[RestoreState, StepInfo]:
         """One event of the lane: a local move or a kill (jump dynamics), or one thinning candidate (diffusions)."""
@@ -325,16 +339,16 @@ class AbstractRestore(AbstractSampler):
         else:
             log_gamma, negative = log_total_kill_rate(state.log_kill_rate, state.adjoint_ratio)
 
-        killed = jnp.log(jax.random.uniform(k_event, dtype=dtype)) < kill_log_probability(log_gamma, log_r)
+        killed = log_uniform(k_event, dtype) < kill_log_probability(log_gamma, log_r)
         mean_hold = jnp.exp(-log_total_rate(log_gamma, log_r))
         hold = jax.random.exponential(k_hold, dtype=dtype) * mean_hold
 
-        point = Point(state.position, state.logdensity, state.logdensity_grad)
-        candidate, aux = dynamics.propose(k_propose, point, self.logdensity)
+        point = Point(state.position, state.logdensity, state.logdensity_grad, state.aux)
+        candidate, aux = dynamics.propose(k_propose, point, self.log_value)
         candidate = candidate.astype(state.position.dtype)
         next_phase = self._next_phase(state.tour + 1)
         fresh = self._by_phase(next_phase, lambda j: self.transfers[j].sample(k_regen, state.position)).astype(candidate.dtype)
-        evaluated, invalid = evaluate(self.logdensity, jnp.where(killed, fresh, candidate), self.uses_gradient)
+        evaluated, invalid = evaluate(self.logdensity, jnp.where(killed, fresh, candidate), self.uses_gradient, self.has_aux)
         moved, local_info = dynamics.accept(k_accept, point, evaluated, aux)
         new_point = jax.tree.map(lambda a, b: jnp.where(killed, a, b), evaluated, moved)
         new_phase = jnp.where(killed, next_phase, state.phase) if self.num_phases > 1 else state.phase
@@ -349,6 +363,7 @@ class AbstractRestore(AbstractSampler):
             new_phase,
             state.tour + killed.astype(jnp.int32),
             state.pending,
+            new_point.aux,
         )
         log_weight = jnp.where(killed, new_point.logdensity - log_q, -jnp.inf)
         info = StepInfo(
@@ -364,6 +379,7 @@ class AbstractRestore(AbstractSampler):
             start_drawn=killed,
             negative_rate=negative,
             bound_ratio=jnp.zeros((), dtype),
+            aux=state.aux,
         )
         return new_state, info
 
@@ -375,13 +391,13 @@ class AbstractRestore(AbstractSampler):
         gap = jax.random.exponential(k_gap, dtype=dtype) / bound
         pending = state.pending
         start = self.transfers[k].sample(k_move, state.position)
-        moved = dynamics.advance(k_move, state.position, gap, self.logdensity).astype(dtype)
-        evaluated, invalid = evaluate(self.logdensity, jnp.where(pending, start.astype(dtype), moved), self.uses_gradient)
+        moved = dynamics.advance(k_move, state.position, gap, self.log_value).astype(dtype)
+        evaluated, invalid = evaluate(self.logdensity, jnp.where(pending, start.astype(dtype), moved), self.uses_gradient, self.has_aux)
         evaluated, invalid, log_q, log_kill, adjoint = self._terms(state.phase, evaluated, invalid, log_rates)
 
         log_gamma, negative = log_total_kill_rate(log_kill, adjoint)
         log_ratio = log_gamma - jnp.log(bound)
-        killed = ~pending & (jnp.log(jax.random.uniform(k_kill, dtype=dtype)) < log_ratio)
+        killed = ~pending & (log_uniform(k_kill, dtype) < log_ratio)
         next_phase = self._next_phase(state.tour + 1)
         new_state = RestoreState(
             evaluated.position,
@@ -392,6 +408,7 @@ class AbstractRestore(AbstractSampler):
             jnp.where(killed, next_phase, state.phase) if self.num_phases > 1 else state.phase,
             state.tour + killed.astype(jnp.int32),
             killed,
+            evaluated.aux,
         )
         log_weight = jnp.where(pending, evaluated.logdensity - log_q, -jnp.inf)
         zero = jnp.zeros((), dtype)
@@ -408,6 +425,7 @@ class AbstractRestore(AbstractSampler):
             start_drawn=pending,
             negative_rate=negative & ~pending,
             bound_ratio=jnp.where(pending, zero, jnp.exp(log_ratio)),
+            aux=evaluated.aux,
         )
         return new_state, info
 
@@ -420,7 +438,7 @@ class AbstractRestore(AbstractSampler):
         """
         log_rates = self._require_rate()
         position = check_point(position, self.dim, "position", finite=True).astype(self.dtype)
-        point, invalid = evaluate(self.logdensity, position, self.uses_gradient)
+        point, invalid = evaluate(self.logdensity, position, self.uses_gradient, self.has_aux)
         phase = jnp.asarray(phase, jnp.int32)
         _, _, _, log_kill, adjoint = self._terms(phase, point, invalid, log_rates)
         return adjoint + jnp.exp(log_kill)
@@ -433,7 +451,7 @@ class AbstractRestore(AbstractSampler):
         """
         if not self.is_diffusion:
             return state.position
-        return self._by_phase(state.phase, lambda k: self.dynamics[k].advance(key, state.position, duration, self.logdensity))  # type: ignore[attr-defined]
+        return self._by_phase(state.phase, lambda k: self.dynamics[k].advance(key, state.position, duration, self.log_value))  # type: ignore[attr-defined]
 
 
 class Restore(AbstractRestore):
@@ -469,6 +487,7 @@ class Restore(AbstractRestore):
         bound: the thinning bound `Gamma` (diffusions only; scalar or one per phase).
         phase_rule: function from the tour index (int array) to the phase index.
         pilot_size: number of reference draws of the pilot estimate of `Z`.
+        has_aux: `logdensity` returns `(log density, aux)`; `aux` is reported in `StepInfo.aux`.
     """
 
     def __init__(
@@ -482,10 +501,11 @@ class Restore(AbstractRestore):
         bound=None,
         phase_rule: Callable[[Array], Array] | None = None,
         pilot_size: int = 4096,
+        has_aux: bool = False,
     ):
         from .regeneration import AbstractRegeneration
         from .transfer import Independent
 
         wrap = lambda t: Independent(t) if isinstance(t, AbstractRegeneration) else t
         transfer = tuple(wrap(t) for t in transfer) if isinstance(transfer, (list, tuple)) else wrap(transfer)
-        self._setup(logdensity, dynamics, transfer, log_rate, tour_length, bound, phase_rule, pilot_size)
+        self._setup(logdensity, dynamics, transfer, log_rate, tour_length, bound, phase_rule, pilot_size, has_aux)

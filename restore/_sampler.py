@@ -43,6 +43,8 @@ class StepInfo(NamedTuple):
             small for these dynamics (`restore.minimal_log_rate` searches for a safe one).
         bound_ratio: `gamma / Gamma` at a thinning candidate (zero for jump dynamics);
             above 1 the bound was violated.
+        aux: the log density's extra output at `position` (samplers built with
+            `has_aux`), else `None`: what a renderer splats.
     """
 
     position: Float[Array, " d"]
@@ -57,6 +59,7 @@ class StepInfo(NamedTuple):
     start_drawn: Bool[Array, ""]
     negative_rate: Bool[Array, ""]
     bound_ratio: Float[Array, ""]
+    aux: Any = None
 
 
 class RunFacts(NamedTuple):

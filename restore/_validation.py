@@ -176,9 +176,12 @@ def check_scalar_fn(fn: Any, dim: int, dtype: Any, name: str) -> None:
         raise ValueError(f"`{name}` must map one point of shape ({dim},) to a real floating scalar, got {out}.")
 
 
-def check_logdensity(logdensity: Callable[[Array], Array], dim: int, with_grad: bool = False) -> None:
-    """Trace `logdensity` once on a `(dim,)` point: it must return one real scalar (and, for
-    gradient-based dynamics, be differentiable by `jax.grad`)."""
+def check_logdensity(
+    logdensity: Callable[[Array], Any], dim: int, with_grad: bool = False, has_aux: bool = False
+) -> None:
+    """Trace `logdensity` once on a `(dim,)` point: it must return one real scalar, or with
+    `has_aux` a pair `(scalar, aux)` (and, for gradient-based dynamics, be differentiable by
+    `jax.grad`)."""
     if not callable(logdensity):
         raise TypeError(f"logdensity must be callable, got {type(logdensity).__name__}")
     probe = jax.ShapeDtypeStruct((dim,), jnp.zeros(()).dtype)
@@ -189,6 +192,16 @@ def check_logdensity(logdensity: Callable[[Array], Array], dim: int, with_grad: 
             f"logdensity failed on a point of shape ({dim},) (the regeneration distribution's "
             f"dimension); it must take one point of shape (d,) and return a scalar: {err}"
         ) from err
+    if has_aux:
+        if not (isinstance(out, tuple) and len(out) == 2):
+            raise ValueError(
+                f"with has_aux=True, logdensity must return a pair (log density, aux), got {type(out).__name__}"
+            )
+        out = out[0]
+    elif isinstance(out, tuple):
+        raise ValueError(
+            f"logdensity returned a tuple of {len(out)}; if it returns (log density, aux), pass has_aux=True"
+        )
     if not hasattr(out, "shape") or out.shape != ():
         shape = getattr(out, "shape", type(out).__name__)
         raise ValueError(
@@ -198,8 +211,9 @@ def check_logdensity(logdensity: Callable[[Array], Array], dim: int, with_grad: 
     if not jnp.issubdtype(out.dtype, jnp.floating):
         raise ValueError(f"logdensity must return a floating-point scalar, got dtype {out.dtype}")
     if with_grad:
+        value = (lambda x: logdensity(x)[0]) if has_aux else logdensity
         try:
-            jax.eval_shape(jax.grad(lambda x: jnp.asarray(logdensity(x)).astype(probe.dtype)), probe)
+            jax.eval_shape(jax.grad(lambda x: jnp.asarray(value(x)).astype(probe.dtype)), probe)
         except Exception as err:
             raise ValueError(
                 "the local dynamics use the gradient of logdensity, but jax.grad failed on it (a "

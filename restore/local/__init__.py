@@ -1,7 +1,9 @@
 """Local dynamics: pi-invariant Markov kernels that a Restore process embeds in continuous time.
 
 Each kernel is split at its one new density evaluation (`propose`, then `accept`), so a
-sampler can share that evaluation with a regeneration draw.
+sampler can share that evaluation with a regeneration draw. `TorusMetropolis` (with
+`KelemenMutation` or `WrappedGaussianMutation`) and `TorusMALA` move on the torus
+`[0, 1)^d`, the primary sample space of light transport.
 """
 
 from ._base import AbstractLocalKernel as AbstractLocalKernel
@@ -11,3 +13,8 @@ from ._blackjax import BlackJAXKernel as BlackJAXKernel
 from ._hmc import HMC as HMC
 from ._mala import MALA as MALA
 from ._random_walk import RandomWalk as RandomWalk
+from ._torus import AbstractTorusMutation as AbstractTorusMutation
+from ._torus import KelemenMutation as KelemenMutation
+from ._torus import TorusMALA as TorusMALA
+from ._torus import TorusMetropolis as TorusMetropolis
+from ._torus import WrappedGaussianMutation as WrappedGaussianMutation

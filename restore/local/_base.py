@@ -12,6 +12,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, PRNGKeyArray
 
 from .._point import Point
+from .._random import log_uniform
 
 
 class LocalInfo(NamedTuple):
@@ -61,6 +62,17 @@ def metropolis_accept(
     log_ratio = jnp.where(jnp.isnan(log_ratio), -jnp.inf, log_ratio)
     log_ratio = jnp.where(candidate.logdensity == -jnp.inf, -jnp.inf, log_ratio)
     log_alpha = jnp.minimum(log_ratio, 0.0)
-    accepted = jnp.log(jax.random.uniform(key, dtype=point.logdensity.dtype)) < log_alpha
+    accepted = log_uniform(key, point.logdensity.dtype) < log_alpha
     chosen = jax.tree.map(lambda c, p: jnp.where(accepted, c, p), candidate, point)
     return chosen, LocalInfo(accepted, jnp.exp(log_alpha))
+
+
+def hastings_accept(
+    key: PRNGKeyArray, point: Point, candidate: Point, log_q: Callable[[Array, Point], Array]
+) -> tuple[Point, LocalInfo]:
+    """Metropolis-Hastings: accept with `min(1, p(y) q(y -> x) / (p(x) q(x -> y)))`, with
+    `log_q(to, start)` the log proposal density (up to a constant) of moving from `start` to `to`."""
+    log_ratio = (
+        candidate.logdensity - point.logdensity + log_q(point.position, candidate) - log_q(candidate.position, point)
+    )
+    return metropolis_accept(key, point, candidate, log_ratio)

@@ -67,4 +67,4 @@ class BlackJAXKernel(AbstractLocalKernel):
         grad = getattr(new_state, "logdensity_grad", None) if point.grad is not None else None
         logp = jnp.where(jnp.isnan(new_state.logdensity), -jnp.inf, new_state.logdensity)
         prob = getattr(info, "acceptance_rate", moved.astype(logp.dtype))
-        return Point(new_state.position, logp, grad), LocalInfo(moved, jnp.asarray(prob, logp.dtype))
+        return Point(new_state.position, logp, grad, candidate.aux), LocalInfo(moved, jnp.asarray(prob, logp.dtype))

@@ -10,7 +10,7 @@ from jaxtyping import Array, Float, PRNGKeyArray
 
 from .._point import Point
 from .._validation import as_scale, check_vector_dim
-from ._base import AbstractLocalKernel, LocalInfo, metropolis_accept
+from ._base import AbstractLocalKernel, LocalInfo, hastings_accept
 
 
 class MALA(AbstractLocalKernel):
@@ -44,10 +44,4 @@ class MALA(AbstractLocalKernel):
         return x + self.step_size * point.grad + jnp.sqrt(2.0 * self.step_size) * noise, None
 
     def accept(self, key: PRNGKeyArray, point: Point, candidate: Point, aux: None) -> tuple[Point, LocalInfo]:
-        log_ratio = (
-            candidate.logdensity
-            - point.logdensity
-            + self._log_q(point.position, candidate)
-            - self._log_q(candidate.position, point)
-        )
-        return metropolis_accept(key, point, candidate, log_ratio)
+        return hastings_accept(key, point, candidate, self._log_q)

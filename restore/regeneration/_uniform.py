@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import final
+from typing import Any, final
 
 import equinox as eqx
 import jax
@@ -94,35 +94,49 @@ class UniformTorus(AbstractRegeneration):
     """Uniform distribution on the unit torus, represented as `[0, 1)^dim`.
 
     The density is w.r.t. Lebesgue measure on `[0, 1)^dim`, hence `log_prob` is
-    0 inside and exactly `-inf` outside.
+    0 inside and exactly `-inf` outside. It is the regeneration of light transport
+    (PSSMLT's large step): a float32 one makes the whole run float32.
 
     Attributes:
         dim: the dimension (static).
+        dtype: the floating dtype of the draws (static; `None`: JAX's default float).
     """
 
     dim: int = eqx.field(static=True)
+    dtype: Any = eqx.field(static=True)
 
-    def __init__(self, dim: int):
+    def __init__(self, dim: int, dtype: Any = None):
         """Arguments:
             dim: the dimension of the torus, a positive int.
+            dtype: the floating dtype of the draws, e.g. `jnp.float32`; default JAX's default float.
 
         Raises:
-            TypeError: if `dim` is not a number (a boolean is not).
+            TypeError: if `dim` is not a number (a boolean is not), or `dtype` is not a floating dtype.
             ValueError: if `dim` is not a positive integer.
         """
         self.dim = check_integer(dim, "dim")
+        if dtype is not None:
+            try:
+                dtype = jnp.dtype(dtype)
+            except TypeError as err:
+                raise TypeError(f"dtype must be a floating dtype, got {dtype!r}") from err
+            if not jnp.issubdtype(dtype, jnp.floating):
+                raise TypeError(f"dtype must be a floating dtype, got {dtype}")
+        self.dtype = dtype
 
     def sample(
         self, key: PRNGKeyArray, shape: tuple[int, ...] = ()
     ) -> Float[Array, "*shape d"]:
-        """Exact uniform draws in `[0, 1)^dim` in the default float dtype.
+        """Exact uniform draws in `[0, 1)^dim`.
 
         Arguments:
             key: a JAX PRNG key.
             shape: batch shape; the result has shape `(*shape, dim)`.
         """
         shape = check_shape(shape)
-        return jax.random.uniform(key, shape + (self.dim,))
+        if self.dtype is None:
+            return jax.random.uniform(key, shape + (self.dim,))
+        return jax.random.uniform(key, shape + (self.dim,), self.dtype)
 
     def log_prob(self, x: Float[Array, " d"]) -> Float[Array, ""]:
         """0 on `[0, 1)^dim`, exactly `-inf` outside (also for NaN)."""
