@@ -3,9 +3,12 @@
 A PSS target (`PSSTarget`) maps points `u` of the torus `[0, 1)^D` to a luminance (the
 density the renderers sample) and an RGB value; the image is
 `I_j = W H ∫ rgb(u) 1{pixel(u) = j} du = W H Z E_p[rgb / lum 1{pixel = j}]` with
-`p = lum` and `Z = ∫ lum du`. Renderers share the same small step (`KelemenMutation`)
-and the same large step (a uniform draw):
-- `MetropolisRestore` and `MALARestore`: jump Restore, killed at `c / lum`, uniform regeneration.
+`p = lum` and `Z = ∫ lum du`. Renderers share the same small step (`restore.local.KelemenMutation`)
+and the same large step (a uniform draw), and run on the core: `pss_logdensity(target)`
+is the target as a log density of one point (with the contribution `rgb / lum` as aux),
+and the local kernels are `restore.local`'s `TorusMetropolis` and `TorusMALA`:
+- `MetropolisRestore` and `MALARestore`: the core's `JumpRestore` with a uniform
+  regeneration (`UniformTorus`), killed at `c / lum`, splatting onto a film.
 - `PSSMLT`: Kelemen et al.'s Metropolis light transport with expected-value splatting.
 - `ERPT`: energy redistribution path tracing, in rounds of equal-deposition chains.
 - `UniformSampler`: plain PSS path tracing (the sanity baseline).
@@ -18,8 +21,6 @@ from ._driver import render as render
 from ._erpt import ERPT as ERPT
 from ._film import empty_film as empty_film
 from ._film import splat as splat
-from ._local import MALAKernel as MALAKernel
-from ._local import MetropolisKernel as MetropolisKernel
 from ._mala_restore import MALARestore as MALARestore
 from ._metrics import l1 as l1
 from ._metrics import mape as mape
@@ -28,11 +29,9 @@ from ._metrics import mse as mse
 from ._metrics import relative_mse as relative_mse
 from ._metrics import variance_across as variance_across
 from ._metropolis_restore import MetropolisRestore as MetropolisRestore
-from ._mutations import AbstractMutation as AbstractMutation
-from ._mutations import KelemenMutation as KelemenMutation
-from ._mutations import WrappedGaussianMutation as WrappedGaussianMutation
-from ._pss import PSSPoint as PSSPoint
 from ._pss import PSSTarget as PSSTarget
+from ._pss import evaluate_points as evaluate_points
+from ._pss import pss_logdensity as pss_logdensity
 from ._pssmlt import PSSMLT as PSSMLT
 from ._renderer import AbstractRenderer as AbstractRenderer
 from ._restore_renderer import AbstractPSSRestore as AbstractPSSRestore

@@ -14,6 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._checkpoint import key_fingerprint, load_checkpoint, save_checkpoint
+from .._driver import Budget, Meter, drive
 from .._validation import check_interval
 from ._pss import check_target
 from ._renderer import (
@@ -79,38 +80,6 @@ def _check_budget(seconds, evaluations):
 
 def _as_floats(stats: dict[str, Any]) -> dict[str, float]:
     return {k: float(np.asarray(v)) for k, v in stats.items()}
-
-
-class _Progress:
-    """A rich progress bar over the budget (evaluations, or seconds when only time is given)."""
-
-    def __init__(self, enabled: bool, description: str, total: float, unit: str):
-        self.bar = None
-        if enabled:
-            from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
-
-            self.bar = Progress(
-                TextColumn("{task.description}"),
-                BarColumn(),
-                TextColumn("{task.completed:.3g}/{task.total:.3g} " + unit),
-                TextColumn("{task.fields[rate]}"),
-                TimeElapsedColumn(),
-                TimeRemainingColumn(),
-            )
-            self.task = self.bar.add_task(description, total=total, rate="")
-
-    def __enter__(self):
-        if self.bar is not None:
-            self.bar.__enter__()
-        return self
-
-    def __exit__(self, *exc):
-        if self.bar is not None:
-            self.bar.__exit__(*exc)
-
-    def update(self, completed: float, rate: str) -> None:
-        if self.bar is not None:
-            self.bar.update(self.task, completed=completed, rate=rate)
 
 
 def render(
@@ -212,7 +181,7 @@ def render(
         "evaluations": evaluations,
         "seconds": seconds,
     }
-    state, totals, steps, chunks, interrupted, spent = None, None, 0, 0, False, 0.0
+    state, totals, steps, chunks, spent = None, None, 0, 0, 0.0
     if checkpoint is not None and resume and os.path.exists(checkpoint):  # checked before any compilation
         tally_like = jax.tree.map(lambda x: np.zeros(x.shape, host_tally_dtype(x)), state_shape.tally)
         (state, totals), header = load_checkpoint(checkpoint, (state_shape, tally_like), fingerprint)
@@ -238,52 +207,44 @@ def render(
         state = jax.block_until_ready(init_fn(key_init))
     params = host_params(state.params)
     renderer.check(params)
-    setup = time.perf_counter() - start
-    first_step, last_save = steps, time.perf_counter()
-    elapsed = lambda: spent + time.perf_counter() - start  # noqa: E731
+    spent += time.perf_counter() - start  # the initialisation counts against a time budget
 
-    saved_steps = steps
+    def advance(n: int) -> int:
+        nonlocal state, totals, chunks
+        advanced = chunk_fn(jax.random.fold_in(key_run, chunks), state, jnp.asarray(n, jnp.int32))
+        drained = host_tally(advanced.tally, totals)  # blocks until the chunk is done
+        state, totals, chunks = zero_tally(advanced), drained, chunks + 1  # committed together
+        return n
 
-    def save():
-        nonlocal last_save, saved_steps
-        if checkpoint is not None and steps > saved_steps:  # only progress is worth a write
-            header = dict(fingerprint, steps=steps, chunks=chunks, seconds_spent=elapsed())
-            save_checkpoint(checkpoint, (state, totals), header)
-            last_save, saved_steps = time.perf_counter(), steps
+    def report(steps: int, elapsed: float) -> tuple[float, str]:
+        spent_evaluations = init_cost + steps * step_cost
+        position = spent_evaluations if evaluations is not None else min(elapsed, seconds)
+        return position, f"{spent_evaluations / max(elapsed, 1e-9):.3g} evals/s"
 
-    try:
-        with _Progress(progress, f"render {name}", total, unit) as bar:
-            while max_steps is None or steps < max_steps:
-                n = chunk if max_steps is None else min(chunk, max_steps - steps)
-                if seconds is not None:
-                    if elapsed() >= seconds and totals is not None:
-                        break
-                    if steps == first_step:
-                        n = 1  # measure the time per step before committing to a chunk
-                    else:
-                        per_step = max((time.perf_counter() - start - setup) / (steps - first_step), 1e-9)
-                        # Chunks of at most a twentieth of the budget (and 2 s): progressive updates
-                        # and a stop close to the budget.
-                        slice_ = min(2.0, max(seconds / 20, 0.05))
-                        n = min(n, max(1, math.ceil(min(seconds - elapsed(), slice_) / per_step)))
-                advanced = chunk_fn(jax.random.fold_in(key_run, chunks), state, jnp.asarray(n, jnp.int32))
-                drained = host_tally(advanced.tally, totals)  # blocks until the chunk is done
-                # committed together, so that Ctrl-C never leaves a chunk half counted
-                state, totals, steps, chunks = zero_tally(advanced), drained, steps + n, chunks + 1
-                spent_evaluations = init_cost + steps * step_cost
-                rate = spent_evaluations / max(elapsed(), 1e-9)
-                bar.update(spent_evaluations if evaluations is not None else min(elapsed(), seconds), f"{rate:.3g} evals/s")
-                if on_update is not None:
-                    image = np.asarray(renderer.image(target, state, totals), np.float32)
-                    on_update(image, _as_floats(renderer.statistics(params, totals)))
-                if checkpoint_seconds is not None and time.perf_counter() - last_save >= checkpoint_seconds:
-                    save()
-    except KeyboardInterrupt:
-        if totals is None:
-            raise  # nothing finished to keep
-        interrupted = True  # keep every finished chunk
-    save()
-    wall = elapsed()
+    def update() -> None:
+        if on_update is not None:
+            image = np.asarray(renderer.image(target, state, totals), np.float32)
+            on_update(image, _as_floats(renderer.statistics(params, totals)))
+
+    def save(steps_done: int, elapsed: float) -> None:
+        header = dict(fingerprint, steps=steps_done, chunks=chunks, seconds_spent=elapsed)
+        save_checkpoint(checkpoint, (state, totals), header)
+
+    outcome = drive(
+        advance,
+        budget=Budget(max_steps, seconds),
+        chunk=chunk,
+        done=steps,
+        spent=spent,
+        meter=Meter(progress, f"render {name}", total, unit, completed=report(steps, spent)[0] if steps else 0),
+        report=report,
+        on_chunk=update,
+        save=save if checkpoint is not None else None,
+        save_every_seconds=checkpoint_seconds,
+    )
+    if outcome.interrupted and totals is None:
+        raise KeyboardInterrupt  # nothing finished to keep
+    steps, interrupted, wall = outcome.steps, outcome.interrupted, outcome.elapsed
     image = np.asarray(renderer.image(target, state, totals), np.float32)
     return RenderResult(
         image=image,

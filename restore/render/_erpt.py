@@ -9,10 +9,10 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int, PRNGKeyArray
 
+from .._point import Point
+from ..local import AbstractTorusMutation, KelemenMutation, TorusMetropolis
 from ._film import empty_film, splat
-from ._local import metropolis_test
-from ._mutations import AbstractMutation, KelemenMutation, fine_uniform, uniform_block
-from ._pss import PSSPoint, check_target, evaluate, select
+from ._pss import check_target, empty_points, evaluate_points, luminance
 from ._renderer import AbstractRenderer, check_count, check_lanes, ratio
 
 
@@ -34,7 +34,7 @@ class ERPTTally(NamedTuple):
 class ERPTState(NamedTuple):
     """The chains at the end of the last round (zeros before the first), constants and sums."""
 
-    point: PSSPoint
+    point: Point
     params: ERPTParams
     tally: ERPTTally
 
@@ -70,16 +70,18 @@ class ERPT(AbstractRenderer):
         chains_per_seed: average chains per seed `C / B`, positive (default 1).
     """
 
-    mutation: AbstractMutation
+    mutation: AbstractTorusMutation
     chain_length: int
     chains_per_seed: float
 
     def __init__(
-        self, mutation: AbstractMutation | None = None, *, chain_length: int = 32, chains_per_seed: float = 1.0
+        self, mutation: AbstractTorusMutation | None = None, *, chain_length: int = 32, chains_per_seed: float = 1.0
     ):
         mutation = KelemenMutation() if mutation is None else mutation
-        if not isinstance(mutation, AbstractMutation):
-            raise TypeError(f"mutation must be a restore.render mutation, got {type(mutation).__name__}")
+        if not isinstance(mutation, AbstractTorusMutation):
+            raise TypeError(
+                f"mutation must be a torus mutation (e.g. KelemenMutation()), got {type(mutation).__name__}"
+            )
         chains_per_seed = float(chains_per_seed)
         if not (math.isfinite(chains_per_seed) and chains_per_seed > 0):
             raise ValueError(f"chains_per_seed must be positive and finite, got {chains_per_seed!r}")
@@ -99,37 +101,37 @@ class ERPT(AbstractRenderer):
     def init(self, target, key: PRNGKeyArray, lanes: int) -> ERPTState:
         check_target(target)
         lanes = check_lanes(lanes)
-        zeros = jnp.zeros((lanes,), jnp.float32)
-        point = PSSPoint(jnp.zeros((lanes, target.dim), jnp.float32), zeros, jnp.zeros((lanes, 3), jnp.float32), None)
+        point = empty_points(lanes, target.dim)
         i0, f0 = jnp.zeros((), jnp.int32), jnp.zeros((), jnp.float32)
         tally = ERPTTally(empty_film(target.num_pixels), i0, i0, i0, i0, f0)
         return ERPTState(point, ERPTParams(jnp.asarray(lanes, jnp.float32)), tally)
 
     def step(self, target, key: PRNGKeyArray, state: ERPTState) -> ERPTState:
         k_seed, k_chain = jax.random.split(key)
-        lanes, d = state.point.u.shape
+        lanes, d = state.point.position.shape
         b, m = self.seeds_per_round(lanes), self.chain_length
-        draw = uniform_block(k_seed, (b * d + 1,))  # one draw: seeds and the rounding offset
-        seeds = evaluate(target, draw[:-1].reshape(b, d))
-        total = jnp.sum(seeds.lum)
+        draw = jax.random.uniform(k_seed, (b * d + 1,), jnp.float32)  # one draw: seeds and the rounding offset
+        seeds = evaluate_points(target, draw[:-1].reshape(b, d))
+        seed_lum = luminance(seeds)
+        total = jnp.sum(seed_lum)
         energy = total / lanes
         # systematic rounding: chain c starts at the seed whose slice of [0, C) holds c + xi
-        cumulative = jnp.cumsum(seeds.lum) * (lanes / jnp.where(total > 0, total, 1.0))
+        cumulative = jnp.cumsum(seed_lum) * (lanes / jnp.where(total > 0, total, 1.0))
         slots = jnp.arange(lanes, dtype=jnp.float32) + draw[-1]
         owner = jnp.clip(jnp.searchsorted(cumulative, slots, side="right"), 0, b - 1)
         chains = jax.tree.map(lambda x: x[owner], seeds)
         weight = jnp.full((lanes,), energy / m, jnp.float32)
+        kernel = TorusMetropolis(self.mutation)
 
         def mutate(i, carry):
             chains, film, accepted = carry
             k_move, k_accept = jax.random.split(jax.random.fold_in(k_chain, i))
-            candidate = evaluate(target, self.mutation(k_move, chains.u))
-            coin = uniform_block(k_accept, (lanes, 2))
-            no_correction = jnp.zeros_like(chains.lum)  # the small step is symmetric
-            accept, _ = metropolis_test(fine_uniform(coin[:, 0], coin[:, 1]), chains, candidate, no_correction)
-            chains = select(accept, candidate, chains)
-            film = splat(film, target.pixel_index(chains.u), weight, chains.rgb, chains.lum)
-            return chains, film, accepted + jnp.sum(accept, dtype=jnp.int32)
+            moves = jax.vmap(lambda k, p: kernel.propose(k, p, None)[0])(jax.random.split(k_move, lanes), chains)
+            candidate = evaluate_points(target, moves)
+            accept_one = lambda k, p, q: kernel.accept(k, p, q, None)  # noqa: E731
+            chains, info = jax.vmap(accept_one)(jax.random.split(k_accept, lanes), chains, candidate)
+            film = splat(film, target.pixel_index(chains.position), weight, chains.aux)
+            return chains, film, accepted + jnp.sum(info.accepted, dtype=jnp.int32)
 
         tally = state.tally
         chains, film, accepted = jax.lax.fori_loop(0, m, mutate, (chains, tally.film, tally.accepted))

@@ -1,4 +1,4 @@
-"""The film: per-pixel sums of weighted `rgb / luminance`, filled by scatter-add."""
+"""The film: per-pixel sums of weighted contributions `rgb / luminance`, filled by scatter-add."""
 
 from __future__ import annotations
 
@@ -15,16 +15,13 @@ def splat(
     film: Float[Array, "P 3"],
     pixel: Int[Array, " N"],
     weight: Float[Array, " N"],
-    rgb: Float[Array, "N 3"],
-    lum: Float[Array, " N"],
+    contribution: Float[Array, "N 3"],
 ) -> Float[Array, "P 3"]:
-    """Add `weight * rgb / lum` of each lane to its pixel.
+    """Add `weight * contribution` of each lane to its pixel (a non-finite value adds nothing, never NaN).
 
-    A lane with `lum == 0` (or a non-finite contribution) adds nothing, never NaN.
+    `contribution` is `rgb / lum` (the aux of `pss_logdensity`), zero where `lum = 0`.
     """
-    positive = lum > 0
-    scale = jnp.where(positive, weight / jnp.where(positive, lum, 1.0), 0.0)
-    value = scale[:, None] * rgb
+    value = weight[:, None] * contribution
     return film.at[pixel].add(jnp.where(jnp.isfinite(value), value, 0.0).astype(film.dtype))
 
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ._local import MALAKernel
+from ..local import TorusMALA
 from ._restore_renderer import AbstractPSSRestore
 
 
@@ -10,7 +10,7 @@ class MALARestore(AbstractPSSRestore):
     """MALA Restore: gradient-informed local dynamics, uniform regeneration, `gamma = c / lum`.
 
     Local moves propose `wrap(u + h grad log lum + sqrt(2h) N(0, I))` and accept with the
-    exact wrapped-normal Hastings ratio (see `MALAKernel`); fresh draws and proposals are
+    exact wrapped-normal Hastings ratio (see `restore.local.TorusMALA`); fresh draws and proposals are
     evaluated together with `target.jax_evaluate_with_grad`, once per lane and step.
     Estimator and tour length as in `MetropolisRestore`.
 
@@ -37,4 +37,4 @@ class MALARestore(AbstractPSSRestore):
         n_bootstrap: int = 65536,
         start: str = "stationary",
     ):
-        self._setup(MALAKernel(step_size), tour_length, rate, n_bootstrap, start)
+        self._setup(TorusMALA(step_size), tour_length, rate, n_bootstrap, start)

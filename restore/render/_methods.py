@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+from ..local import AbstractTorusMutation as AbstractMutation
+from ..local import KelemenMutation
 from ._erpt import ERPT
 from ._mala_restore import MALARestore
 from ._metropolis_restore import MetropolisRestore
-from ._mutations import AbstractMutation, KelemenMutation
 from ._pssmlt import PSSMLT
 from ._renderer import AbstractRenderer
 from ._uniform import UniformSampler

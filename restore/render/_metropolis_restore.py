@@ -2,8 +2,7 @@
 
 from __future__ import annotations
 
-from ._local import MetropolisKernel
-from ._mutations import AbstractMutation
+from ..local import AbstractTorusMutation, TorusMetropolis
 from ._restore_renderer import AbstractPSSRestore
 
 
@@ -15,7 +14,8 @@ class MetropolisRestore(AbstractPSSRestore):
     (PSSMLT's large step); kill rate `gamma = c / lum`. Each step evaluates the target
     once per lane. The image is `W H c S_j / K` with `S_j` the film of
     `rgb / lum / (1 + gamma)` and `K` the Rao-Blackwellised number of finished tours (see
-    `restore.render._restore_renderer` for the derivation).
+    `restore.render._restore_renderer` for the derivation). The sampler is the core's
+    `restore.JumpRestore` with `restore.local.TorusMetropolis` and a uniform regeneration.
 
     The default `tour_length = 32` local moves per tour: a tour's one uniform start is
     then amortised over about 32 local moves (about 3% of the evaluations are fresh draws,
@@ -37,11 +37,11 @@ class MetropolisRestore(AbstractPSSRestore):
 
     def __init__(
         self,
-        mutation: AbstractMutation | None = None,
+        mutation: AbstractTorusMutation | None = None,
         *,
         tour_length: float = 32.0,
         rate: float | None = None,
         n_bootstrap: int = 65536,
         start: str = "stationary",
     ):
-        self._setup(MetropolisKernel(mutation), tour_length, rate, n_bootstrap, start)
+        self._setup(TorusMetropolis(mutation), tour_length, rate, n_bootstrap, start)

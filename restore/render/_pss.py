@@ -7,10 +7,14 @@ the (unnormalised) density the renderers sample and its RGB value is what they s
 
 from __future__ import annotations
 
-from typing import NamedTuple, Protocol, runtime_checkable
+from collections.abc import Callable
+from typing import Protocol, runtime_checkable
 
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
+
+from .._point import Point, evaluate
 
 
 @runtime_checkable
@@ -63,48 +67,59 @@ def check_target(target: object, *, needs_gradient: bool = False) -> None:
         raise ValueError(f"target.num_pixels is {target.num_pixels}, but W * H = {res[0] * res[1]}")  # type: ignore[attr-defined]
 
 
-class PSSPoint(NamedTuple):
-    """A batch of evaluated points.
+def pss_logdensity(target: PSSTarget) -> Callable[[Array], tuple[Array, Array]]:
+    """The target as a log density of one point for the core samplers, with the colour as aux.
 
-    Attributes:
-        u: positions on the torus, `(N, D)`.
-        lum: luminance `(N,)`, zero where the target returned a negative, NaN or
-            infinite value (such a point is treated as having zero density).
-        rgb: colour `(N, 3)`, zero where `lum` is zero.
-        grad: gradient of `log lum`, `(N, D)`, zero where it is not finite; `None` when
-            the renderer does not use gradients.
+    `u (D,) -> (log lum(u), rgb(u) / lum(u))`: the value is `-inf` where the luminance is
+    zero, negative or not finite (zero density), and the aux (the contribution per unit
+    density that every MCMC renderer splats) is then zero, as are non-finite colours.
+    Samplers built with `has_aux=True` carry it beside the state at no second evaluation.
+    Under `vmap` the target's batch call is made once for all lanes. Differentiating the
+    value calls `target.jax_evaluate_with_grad` (a custom VJP), so gradient-based kernels
+    (`restore.local.TorusMALA`) also cost one batch call per step.
     """
 
-    u: Float[Array, "N D"]
-    lum: Float[Array, " N"]
-    rgb: Float[Array, "N 3"]
-    grad: Float[Array, "N D"] | None
+    def clean(lum: Array, rgb: Array) -> tuple[Array, Array]:
+        lum, rgb = jnp.asarray(lum, jnp.float32), jnp.asarray(rgb, jnp.float32)
+        good = jnp.isfinite(lum) & (lum > 0)
+        safe = jnp.where(good, lum, 1.0)
+        contribution = jnp.where(good & jnp.isfinite(rgb), rgb / safe, 0.0)
+        contribution = jnp.where(jnp.isfinite(contribution), contribution, 0.0)
+        return jnp.where(good, jnp.log(safe), -jnp.inf), contribution
+
+    @jax.custom_vjp
+    def logdensity(u: Array) -> tuple[Array, Array]:
+        lum, rgb = target.jax_evaluate(jnp.asarray(u, jnp.float32)[None])
+        return clean(lum[0], rgb[0])
+
+    def forward(u: Array):
+        lum, rgb, grad = target.jax_evaluate_with_grad(jnp.asarray(u, jnp.float32)[None])
+        grad = jnp.asarray(grad[0]).astype(jnp.asarray(u).dtype)
+        return clean(lum[0], rgb[0]), jnp.where(jnp.isfinite(grad), grad, 0.0)
+
+    def backward(grad: Array, cotangent: tuple[Array, Array]) -> tuple[Array]:
+        return (cotangent[0].astype(grad.dtype) * grad,)
+
+    logdensity.defvjp(forward, backward)
+    return logdensity
 
 
-def evaluate(target: PSSTarget, u: Float[Array, "N D"], with_grad: bool = False) -> PSSPoint:
-    """Evaluate the target once on a batch (one batch call), in float32, with bad values cleaned."""
+def evaluate_points(target: PSSTarget, u: Float[Array, "N D"], with_grad: bool = False) -> Point:
+    """Evaluate a batch of points (one batch call) as the core samplers do: a `Point` of arrays
+    with `aux = rgb / lum`, float32."""
+    logdensity = pss_logdensity(target)
     u = jnp.asarray(u, jnp.float32)
-    if with_grad:
-        lum, rgb, grad = target.jax_evaluate_with_grad(u)
-        grad = jnp.asarray(grad, jnp.float32)
-        grad = jnp.where(jnp.isfinite(grad), grad, 0.0)
-    else:
-        lum, rgb = target.jax_evaluate(u)
-        grad = None
-    lum, rgb = jnp.asarray(lum, jnp.float32), jnp.asarray(rgb, jnp.float32)
-    good = jnp.isfinite(lum) & (lum > 0)
-    lum = jnp.where(good, lum, 0.0)
-    rgb = jnp.where(good[:, None] & jnp.isfinite(rgb), rgb, 0.0)
-    return PSSPoint(u, lum, rgb, grad)
+    return jax.vmap(lambda x: evaluate(logdensity, x, with_grad, has_aux=True)[0])(u)
 
 
-def select(mask: Array, a: PSSPoint, b: PSSPoint) -> PSSPoint:
-    """Lane-wise `a where mask else b`."""
+def luminance(point: Point) -> Float[Array, "*N"]:
+    """The luminance of evaluated points (`exp` of their log density; zero where it is `-inf`)."""
+    return jnp.exp(point.logdensity)
 
-    def pick(x, y):
-        if x is None:
-            return None
-        m = mask.reshape(mask.shape + (1,) * (x.ndim - 1))
-        return jnp.where(m, x, y)
 
-    return PSSPoint(*(pick(x, y) for x, y in zip(a, b)))
+def empty_points(n: int, dim: int) -> Point:
+    """`n` placeholder points (zero positions and contributions, zero density) of a state
+    that is filled by the first step."""
+    return Point(
+        jnp.zeros((n, dim), jnp.float32), jnp.full((n,), -jnp.inf, jnp.float32), None, jnp.zeros((n, 3), jnp.float32)
+    )

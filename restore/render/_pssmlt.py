@@ -9,10 +9,10 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int, PRNGKeyArray
 
+from .._point import Point
+from ..local import AbstractTorusMutation, KelemenMutation, TorusMetropolis
 from ._film import empty_film, splat
-from ._local import metropolis_test
-from ._mutations import AbstractMutation, KelemenMutation, fine_uniform, uniform_block
-from ._pss import PSSPoint, check_target, evaluate, select
+from ._pss import check_target, evaluate_points, luminance
 from ._renderer import AbstractRenderer, bootstrap_points, bootstrap_size, check_count, check_lanes, ratio, resample
 
 
@@ -34,9 +34,9 @@ class PSSMLTTally(NamedTuple):
 
 
 class PSSMLTState(NamedTuple):
-    """Each chain's current point, constants and sums."""
+    """Each chain's current point (with its contribution `rgb / lum` as aux), constants and sums."""
 
-    point: PSSPoint
+    point: Point
     params: PSSMLTParams
     tally: PSSMLTTally
 
@@ -45,7 +45,8 @@ class PSSMLT(AbstractRenderer):
     """Primary-sample-space Metropolis light transport, one Metropolis chain per lane.
 
     Proposal: with probability `p_large` a uniform draw (large step), else the small step;
-    both are symmetric, so the acceptance is `a = min(1, lum' / lum)`. Each step
+    both are symmetric, so the acceptance is `a = min(1, lum' / lum)`: the core's
+    `restore.local.TorusMetropolis` kernel decides both. Each step
     evaluates the target once per lane and splats the current state with weight `1 - a`
     and the proposal with weight `a` (expected-value splatting: the weights are the
     expectation of the next state's indicator, so `E[splat] = E[h(u_next)]`).
@@ -69,14 +70,18 @@ class PSSMLT(AbstractRenderer):
         n_bootstrap: uniform draws for `Z_hat` and the chains' starts.
     """
 
-    mutation: AbstractMutation
+    mutation: AbstractTorusMutation
     p_large: float
     n_bootstrap: int
 
-    def __init__(self, mutation: AbstractMutation | None = None, *, p_large: float = 0.3, n_bootstrap: int = 65536):
+    def __init__(
+        self, mutation: AbstractTorusMutation | None = None, *, p_large: float = 0.3, n_bootstrap: int = 65536
+    ):
         mutation = KelemenMutation() if mutation is None else mutation
-        if not isinstance(mutation, AbstractMutation):
-            raise TypeError(f"mutation must be a restore.render mutation, got {type(mutation).__name__}")
+        if not isinstance(mutation, AbstractTorusMutation):
+            raise TypeError(
+                f"mutation must be a torus mutation (e.g. KelemenMutation()), got {type(mutation).__name__}"
+            )
         p_large = float(p_large)
         if not (math.isfinite(p_large) and 0 < p_large <= 1):
             raise ValueError(f"p_large must lie in (0, 1], got {p_large!r}")
@@ -95,9 +100,10 @@ class PSSMLT(AbstractRenderer):
         lanes = check_lanes(lanes)
         k_boot, k_pick = jax.random.split(key)
         boot = bootstrap_points(target, k_boot, self.n_bootstrap, lanes)
-        z = jnp.mean(boot.lum)
-        z_err = jnp.std(boot.lum) / (z * math.sqrt(boot.lum.shape[0]))
-        index = resample(k_pick, boot.lum, lanes)
+        lum = luminance(boot)
+        z = jnp.mean(lum)
+        z_err = jnp.std(lum) / (z * math.sqrt(lum.shape[0]))
+        index = resample(k_pick, lum, lanes)
         point = jax.tree.map(lambda x: x[index], boot)
         i0 = jnp.zeros((), jnp.int32)
         tally = PSSMLTTally(empty_film(target.num_pixels), i0, i0, i0, i0)
@@ -111,21 +117,22 @@ class PSSMLT(AbstractRenderer):
             )
 
     def step(self, target, key: PRNGKeyArray, state: PSSMLTState) -> PSSMLTState:
-        k_small, k_rest = jax.random.split(key)
+        k_small, k_large, k_kind, k_accept = jax.random.split(key, 4)
         x, tally = state.point, state.tally
-        n, d = x.u.shape
-        block = uniform_block(k_rest, (n, d + 3))  # one draw: large step, its kind, accept
-        large = block[:, d] < self.p_large
-        candidate_u = jnp.where(large[:, None], block[:, :d], self.mutation(k_small, x.u))
-        y = evaluate(target, candidate_u)
-        accept, a = metropolis_test(fine_uniform(block[:, d + 1], block[:, d + 2]), x, y, jnp.zeros_like(x.lum))
+        n, d = x.position.shape
+        kernel = TorusMetropolis(self.mutation)
+        small = jax.vmap(lambda k, p: kernel.propose(k, p, None)[0])(jax.random.split(k_small, n), x)
+        fresh = jax.random.uniform(k_large, (n * d,), jnp.float32).reshape(n, d)
+        large = jax.random.uniform(k_kind, (n,), jnp.float32) < self.p_large
+        y = evaluate_points(target, jnp.where(large[:, None], fresh, small))
+        moved, info = jax.vmap(lambda k, p, q: kernel.accept(k, p, q, None))(jax.random.split(k_accept, n), x, y)
+        a, accept = info.acceptance_probability, info.accepted
         both = lambda p, q: jnp.concatenate([p, q])  # noqa: E731
         film = splat(
             tally.film,
-            both(target.pixel_index(x.u), target.pixel_index(y.u)),
+            both(target.pixel_index(x.position), target.pixel_index(y.position)),
             both(1.0 - a, a),
-            both(x.rgb, y.rgb),
-            both(x.lum, y.lum),
+            both(x.aux, y.aux),
         )
         tally = PSSMLTTally(
             film=film,
@@ -134,7 +141,7 @@ class PSSMLT(AbstractRenderer):
             large_steps=tally.large_steps + jnp.sum(large, dtype=jnp.int32),
             large_accepted=tally.large_accepted + jnp.sum(accept & large, dtype=jnp.int32),
         )
-        return PSSMLTState(select(accept, y, x), state.params, tally)
+        return PSSMLTState(moved, state.params, tally)
 
     def scale(self, target, params: PSSMLTParams, tally: PSSMLTTally):
         """`W H Z_hat / (lanes x steps)`."""

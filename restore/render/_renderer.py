@@ -21,7 +21,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int, PRNGKeyArray
 
+from .._point import Point
 from ._film import film_image
+from ._pss import evaluate_points
 
 
 def xp_of(*arrays):
@@ -70,16 +72,13 @@ def host_params(params):
     return jax.tree.map(lambda x: np.asarray(x, np.float64), params)
 
 
-def bootstrap_points(target, key: PRNGKeyArray, num: int, batch: int, with_grad: bool = False):
+def bootstrap_points(target, key: PRNGKeyArray, num: int, batch: int, with_grad: bool = False) -> Point:
     """`num` uniform points (rounded up to whole batches) evaluated in batches of at most
-    `batch` lanes (one batch call at a time), as one `PSSPoint`."""
-    from ._mutations import uniform_draw
-    from ._pss import evaluate
-
+    `batch` lanes (one batch call at a time), as one `Point` of arrays."""
     size = min(num, batch)
     chunks = -(-num // size)
-    u = uniform_draw(key, chunks * size, target.dim).reshape(chunks, size, target.dim)
-    point = jax.lax.map(lambda v: evaluate(target, v, with_grad), u)
+    u = jax.random.uniform(key, (chunks * size * target.dim,), jnp.float32).reshape(chunks, size, target.dim)
+    point = jax.lax.map(lambda v: evaluate_points(target, v, with_grad), u)
     return jax.tree.map(lambda x: x.reshape((chunks * size,) + x.shape[2:]), point)
 
 

@@ -1,14 +1,16 @@
-"""Jump Restore on the PSS torus, batch-level over lanes: the engine of Metropolis and MALA Restore.
+"""Metropolis and MALA Restore: the core's `JumpRestore` on the PSS torus, with a film.
 
-Local dynamics: a luminance-invariant kernel (Metropolis small step, MALA) embedded in
-continuous time at rate 1. Regeneration: uniform on the torus (`q = 1`). Kill rate
-`gamma(u) = c q(u) / p(u) = c / lum(u)`, infinite where `lum = 0` (such a start is
-killed at once and splats nothing). Each step is one event of every lane (competing
-exponentials, Algorithm 7.1 of the paper): the lane splats its current state with the
-Rao-Blackwellised holding time `1 / (1 + gamma)`, is killed with probability
-`kappa = gamma / (1 + gamma)` (in log space), and then either regenerates at a uniform
-draw or proposes a local move. Fresh draws and proposals of all lanes are evaluated in
-one batch call, so a step costs exactly one evaluation per lane.
+The sampler is `restore.JumpRestore` itself, one per target: local dynamics a
+luminance-invariant kernel of `restore.local` (`TorusMetropolis`, `TorusMALA`) embedded
+in continuous time at rate 1, regeneration `UniformTorus` (`q = 1`), so the kill rate is
+`gamma(u) = c q(u) / p(u) = c / lum(u)`, infinite where `lum = 0` (such a start is killed
+at once and splats nothing). The log density is `pss_logdensity(target)`, whose aux is
+the contribution `rgb / lum`. Each step is one event of every lane (`vmap` of the core
+step; competing exponentials, Algorithm 7.1 of the paper): the lane splats its current
+state with the Rao-Blackwellised holding time `1 / (1 + gamma)` (`StepInfo`'s expected
+holding time and aux), is killed with probability `kappa = gamma / (1 + gamma)`, and then
+either regenerates at a uniform draw or makes a local move. Fresh draws and proposals of
+all lanes are evaluated in one batch call, so a step costs exactly one evaluation per lane.
 
 **Tour length and `c`.** A tour started at `nu = U[0, 1)^D` visits the embedded jump
 chain's states with expected occupation density `(p + c) / c` (it solves
@@ -36,7 +38,8 @@ and `kappa` have their stationary means, so `E[c S_j] / E[K] = c pi_J(h / (1 + g
 pi_J(kappa) = Z E_p[h]` for any run length: the ratio is then exact up to the ratio-estimator
 bias `O(1 / (lanes x steps))`. `start="stationary"` (the default) draws the lanes from the
 bootstrap resampled with weights `lum + c` (sampling-importance-resampling: exact as
-`n_bootstrap` grows, at no extra evaluation). `start="uniform"` starts every lane at a
+`n_bootstrap` grows; the sampler's `init` evaluates the chosen starts once more, `lanes`
+evaluations). `start="uniform"` starts every lane at a
 uniform draw (a tour start, as in the paper): also consistent, but a finite run ends
 with the lanes' long tours (those in bright regions) unfinished, a bias of order
 (bright-region sojourn) / (steps per lane) that is large for short runs: 25% low on
@@ -54,10 +57,13 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int, PRNGKeyArray
 
+from .._jump_restore import JumpRestore
+from .._rate import kill_log_probability
+from .._restore import RestoreState
+from ..local import AbstractLocalKernel
+from ..regeneration import AbstractRegeneration, UniformTorus
 from ._film import empty_film, splat
-from ._local import AbstractLocalKernel, metropolis_test
-from ._mutations import fine_uniform, uniform_block, uniform_draw
-from ._pss import PSSPoint, check_target, evaluate, select
+from ._pss import check_target, luminance, pss_logdensity
 from ._renderer import (
     AbstractRenderer,
     bootstrap_points,
@@ -113,9 +119,10 @@ class RestoreTally(NamedTuple):
 
 
 class RestoreRenderState(NamedTuple):
-    """State of a Restore render: every lane's current point and tour length, constants, sums."""
+    """State of a Restore render: the core sampler's lane states, each lane's local moves in its
+    current tour, constants and sums."""
 
-    point: PSSPoint
+    lanes: RestoreState
     tour_moves: Int[Array, " N"]
     params: RestoreParams
     tally: RestoreTally
@@ -132,7 +139,7 @@ class AbstractPSSRestore(AbstractRenderer):
     Concrete renderers (`MetropolisRestore`, `MALARestore`) choose the local kernel.
 
     Attributes:
-        kernel: the luminance-invariant local kernel.
+        kernel: the luminance-invariant local kernel (a `restore.local` kernel).
         tour_length: `L`, the mean number of local moves per tour; `c = Z_hat / L`.
         rate: `c` given directly, or `None`.
         n_bootstrap: uniform draws in the bootstrap (the estimate of `Z` and the
@@ -172,36 +179,45 @@ class AbstractPSSRestore(AbstractRenderer):
 
     def init_cost(self, lanes: int) -> int:
         boot = bootstrap_size(self.n_bootstrap, lanes) if self._bootstraps else 0
-        return boot + (lanes if self.start == "uniform" else 0)
+        return boot + lanes  # the lanes' starts are evaluated by the sampler's init
 
     def step_cost(self, lanes: int) -> int:
         return lanes
 
-    def log_kill_rate(self, params: RestoreParams, lum: Float[Array, " N"]) -> Float[Array, " N"]:
-        """`log gamma = log c - log lum` (`+inf` where `lum = 0`)."""
-        return params.log_rate - jnp.log(lum)
+    def regeneration(self, target) -> AbstractRegeneration:
+        """The regeneration distribution: uniform on the torus, in float32."""
+        return UniformTorus(target.dim, jnp.float32)
+
+    def sampler(self, target, log_rate: Float[Array, ""]) -> JumpRestore:
+        """The core sampler this renderer runs on `target`, with `log c = log_rate`."""
+        return JumpRestore(
+            pss_logdensity(target), self.kernel, self.regeneration(target), log_rate=log_rate, has_aux=True
+        )
 
     def init(self, target, key: PRNGKeyArray, lanes: int) -> RestoreRenderState:
         check_target(target, needs_gradient=self.uses_gradient)
         lanes = check_lanes(lanes)
-        k_boot, k_start = jax.random.split(key)
+        k_boot, k_pick, k_start = jax.random.split(key, 3)
         z = z_err = jnp.asarray(jnp.nan, jnp.float32)
         if self._bootstraps:
             boot = bootstrap_points(target, k_boot, self.n_bootstrap, lanes, self.uses_gradient)
-            z = jnp.mean(boot.lum)
-            z_err = jnp.std(boot.lum) / (z * math.sqrt(boot.lum.shape[0]))
+            lum = luminance(boot)
+            z = jnp.mean(lum)
+            z_err = jnp.std(lum) / (z * math.sqrt(lum.shape[0]))
         if self.rate is None:
             log_rate = jnp.log(z) - math.log(self.tour_length)
         else:
             log_rate = jnp.asarray(math.log(self.rate), jnp.float32)
         params = RestoreParams(jnp.exp(log_rate), log_rate, z, z_err, jnp.asarray(lanes, jnp.float32))
-        if self.start == "uniform":
-            point = evaluate(target, uniform_draw(k_start, lanes, target.dim), self.uses_gradient)
+        sampler = self.sampler(target, log_rate)
+        keys = jax.random.split(k_start, lanes)
+        if self.start == "uniform":  # tour starts, drawn by the sampler
+            states = jax.vmap(sampler.init)(keys)
         else:  # resample the bootstrap with weights lum + c: the jump chain's stationary law
-            index = resample(k_start, boot.lum + params.rate, lanes)
-            point = jax.tree.map(lambda x: x[index], boot)
+            index = resample(k_pick, lum + params.rate, lanes)
+            states = jax.vmap(sampler.init)(keys, boot.position[index])
         zeros = jnp.zeros(lanes, jnp.int32)
-        return RestoreRenderState(point, zeros, params, _zero_tally(target.num_pixels))
+        return RestoreRenderState(states, zeros, params, _zero_tally(target.num_pixels))
 
     def check(self, params: RestoreParams) -> None:
         if self.rate is None and not float(params.z_bootstrap) > 0:
@@ -212,38 +228,23 @@ class AbstractPSSRestore(AbstractRenderer):
             )
 
     def step(self, target, key: PRNGKeyArray, state: RestoreRenderState) -> RestoreRenderState:
-        k_move, k_rest = jax.random.split(key)
-        x, tally = state.point, state.tally
-        n, d = x.u.shape
-        block = uniform_block(k_rest, (n, d + 4))  # one draw: fresh point, kill, accept
-        log_gamma = self.log_kill_rate(state.params, x.lum)
-        log_kill = jax.nn.log_sigmoid(log_gamma)  # log(gamma / (1 + gamma)), exact for gamma in [0, inf]
-        holding = jnp.exp(jax.nn.log_sigmoid(-log_gamma))  # 1 / (1 + gamma)
-        film = splat(tally.film, target.pixel_index(x.u), holding, x.rgb, x.lum)
-        killed = jnp.log(fine_uniform(block[:, d], block[:, d + 1])) < log_kill
-        candidate_u = jnp.where(killed[:, None], block[:, :d], self.kernel.propose(k_move, x))
-        new = evaluate(target, candidate_u, self.uses_gradient)
-        accept_u = fine_uniform(block[:, d + 2], block[:, d + 3])
-        accept, _ = metropolis_test(accept_u, x, new, self.kernel.log_correction(x, new))
-        accept = accept & ~killed
-        moves = state.tour_moves
+        sampler = self.sampler(target, state.params.log_rate)
+        n, tally, moves = state.tour_moves.shape[0], state.tally, state.tour_moves
+        lanes, info = jax.vmap(sampler.step)(jax.random.split(key, n), state.lanes)
+        kill = jnp.exp(kill_log_probability(state.lanes.log_kill_rate, jnp.zeros((), jnp.float32)))  # local rate 1
+        killed = info.regenerated
         tally = RestoreTally(
-            film=film,
-            kill_probability=tally.kill_probability + jnp.sum(jnp.exp(log_kill)),
+            film=splat(tally.film, target.pixel_index(info.position), info.expected_holding_time, info.aux),
+            kill_probability=tally.kill_probability + jnp.sum(kill),
             kills=tally.kills + jnp.sum(killed, dtype=jnp.int32),
             local_moves=tally.local_moves + jnp.sum(~killed, dtype=jnp.int32),
-            accepted=tally.accepted + jnp.sum(accept, dtype=jnp.int32),
+            accepted=tally.accepted + jnp.sum(info.accepted, dtype=jnp.int32),
             completed_moves=tally.completed_moves + jnp.sum(jnp.where(killed, moves, 0), dtype=jnp.int32),
             completed_moves_sq=tally.completed_moves_sq
             + jnp.sum(jnp.where(killed, moves.astype(jnp.float32) ** 2, 0.0)),
             lane_steps=tally.lane_steps + jnp.int32(n),
         )
-        return RestoreRenderState(
-            point=select(killed | accept, new, x),
-            tour_moves=jnp.where(killed, 0, moves + 1),
-            params=state.params,
-            tally=tally,
-        )
+        return RestoreRenderState(lanes, jnp.where(killed, 0, moves + 1), state.params, tally)
 
     def scale(self, target, params: RestoreParams, tally: RestoreTally):
         """`W H c / K`: the image is `W H c S_j / K` (module docstring)."""

@@ -4,12 +4,13 @@ from __future__ import annotations
 
 from typing import Any, NamedTuple
 
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int, PRNGKeyArray
 
+from .._point import Point
 from ._film import empty_film, splat
-from ._mutations import uniform_draw
-from ._pss import PSSPoint, check_target, evaluate
+from ._pss import check_target, empty_points, evaluate_points, luminance
 from ._renderer import AbstractRenderer, check_lanes, ratio
 
 
@@ -28,7 +29,7 @@ class UniformTally(NamedTuple):
 class UniformState(NamedTuple):
     """The last batch drawn (zeros before the first step), constants and sums."""
 
-    point: PSSPoint
+    point: Point
     params: UniformParams
     tally: UniformTally
 
@@ -49,20 +50,19 @@ class UniformSampler(AbstractRenderer):
     def init(self, target, key: PRNGKeyArray, lanes: int) -> UniformState:
         check_target(target)
         lanes = check_lanes(lanes)
-        zeros = jnp.zeros((lanes,), jnp.float32)
-        point = PSSPoint(jnp.zeros((lanes, target.dim), jnp.float32), zeros, jnp.zeros((lanes, 3), jnp.float32), None)
+        point = empty_points(lanes, target.dim)
         i0 = jnp.zeros((), jnp.int32)
         tally = UniformTally(empty_film(target.num_pixels), i0, i0)
         return UniformState(point, UniformParams(jnp.asarray(lanes, jnp.float32)), tally)
 
     def step(self, target, key: PRNGKeyArray, state: UniformState) -> UniformState:
-        n = state.point.lum.shape[0]
-        point = evaluate(target, uniform_draw(key, n, target.dim))
-        tally = state.tally
+        n = state.point.position.shape[0]
+        point = evaluate_points(target, jax.random.uniform(key, (n * target.dim,), jnp.float32).reshape(n, target.dim))
+        lum, tally = luminance(point), state.tally
         tally = UniformTally(
-            film=splat(tally.film, target.pixel_index(point.u), point.lum, point.rgb, point.lum),
+            film=splat(tally.film, target.pixel_index(point.position), lum, point.aux),  # lum * rgb / lum = rgb
             samples=tally.samples + jnp.int32(n),
-            black=tally.black + jnp.sum(point.lum == 0, dtype=jnp.int32),
+            black=tally.black + jnp.sum(lum == 0, dtype=jnp.int32),
         )
         return UniformState(point, state.params, tally)
 

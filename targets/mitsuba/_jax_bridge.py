@@ -5,16 +5,24 @@ Dr.Jit), so the whole batch leaves XLA once per call: the callback receives ever
 at once, traces them with the frozen Dr.Jit function and returns NumPy arrays. With
 `vmap_method="expand_dims"` a vmapped call is still one callback on the stacked batch.
 The pixel index needs no callback: it is computed in JAX exactly as the tracer does.
+
+Calls into the tracer are serialised by one lock: XLA may run two callbacks at once
+(e.g. the lanes of two devices, or two jitted programs), and Dr.Jit's recorded
+functions are not safe to enter concurrently (such runs failed with "unknown variable").
 """
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable
 from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+#: Serialises every call into the tracer (see the module docstring).
+TRACER_LOCK = threading.Lock()
 
 
 def wrap_unit_np(u: np.ndarray) -> np.ndarray:
@@ -44,7 +52,8 @@ def values_callback(evaluate: Callable[[np.ndarray], Any], dim: int) -> Callable
 
     def host(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         batch = np.asarray(u).shape[:-1]
-        samples = evaluate(np.asarray(u).reshape(-1, dim))
+        with TRACER_LOCK:
+            samples = evaluate(np.asarray(u).reshape(-1, dim))
         return samples.luminance.reshape(batch), samples.rgb.reshape(*batch, 3)
 
     def call(u: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -65,7 +74,8 @@ def values_and_grad_callback(
 
     def host(u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         batch = np.asarray(u).shape[:-1]
-        samples, grad = evaluate_with_grad(np.asarray(u).reshape(-1, dim))
+        with TRACER_LOCK:
+            samples, grad = evaluate_with_grad(np.asarray(u).reshape(-1, dim))
         return samples.luminance.reshape(batch), samples.rgb.reshape(*batch, 3), grad.reshape(*batch, dim)
 
     def call(u: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:

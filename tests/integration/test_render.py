@@ -15,6 +15,8 @@ import pytest
 from scipy import stats
 
 import restore.render as rr
+from restore.local import KelemenMutation, TorusMALA, WrappedGaussianMutation, metropolis_accept
+from restore.regeneration import AbstractRegeneration
 from restore.render._renderer import host_params
 from targets import AnalyticImage
 
@@ -141,15 +143,27 @@ def test_restore_tour_length_and_normalising_constant_agree_with_theory(runs):
     assert abs(ratio.mean() - 1) < 0.03
     # c = Z_hat / L: tours last L moves up to the bootstrap error of Z_hat
     np.testing.assert_allclose(st["rate"], st["z_bootstrap"] / 16.0, rtol=1e-5)
-    assert np.all(st["tours_per_lane"] > 30) and np.all(st["acceptance_rate"] > 0.5)
+    assert np.all(st["tours_per_lane"] > 25) and np.all(st["acceptance_rate"] > 0.5)  # about 640 / 17 = 38
+
+
+class MislabelledTorus(AbstractRegeneration):
+    """Uniform draws on the torus whose claimed density is `lum / Z` instead of 1."""
+
+    dim: int
+
+    def sample(self, key, shape=()):
+        return jax.random.uniform(key, tuple(shape) + (self.dim,), jnp.float32)
+
+    def log_prob(self, x):
+        return jnp.log(TARGET.jax_evaluate(x[None])[0][0] / TARGET.Z)
 
 
 class ConstantRateRestore(rr.MetropolisRestore):
-    """Negative control: the kill rate `c / lum` replaced by the constant `c / Z_hat`."""
+    """Negative control: a regeneration density that does not match its draws turns the kill
+    rate `c q / p = c / lum` into the constant `c / Z`."""
 
-    def log_kill_rate(self, params, lum):
-        constant = params.log_rate - jnp.log(params.z_bootstrap)
-        return jnp.where(lum > 0, constant, jnp.inf)
+    def regeneration(self, target):
+        return MislabelledTorus(target.dim)
 
 
 def test_negative_control_constant_kill_rate_is_rejected():
@@ -169,33 +183,31 @@ def test_uniform_start_restore_shows_its_finite_run_bias():
     assert p_value < 1e-6 and late.mean(0).sum() < 0.9 * EXACT.sum(), (p_value, t_max)
 
 
-class UncorrectedMALA(rr.MALAKernel):
-    """Negative control: MALA without its Hastings term."""
+class UncorrectedMALA(TorusMALA):
+    """Negative control: torus MALA without its Hastings term."""
 
-    def log_correction(self, current, candidate):
-        return jnp.zeros_like(current.lum)
+    def accept(self, key, point, candidate, aux):
+        return metropolis_accept(key, point, candidate, candidate.logdensity - point.logdensity)
 
 
-@pytest.mark.parametrize("kernel, passes", [(rr.MALAKernel(0.01), True), (UncorrectedMALA(0.01), False)])
+@pytest.mark.parametrize("kernel, passes", [(TorusMALA(0.01), True), (UncorrectedMALA(0.01), False)])
 def test_wrapped_mala_kernel_leaves_the_luminance_invariant(kernel, passes):
     """From exact draws, 30 MALA steps with a step (sqrt(2h) = 0.14) large enough to wrap
     around the torus must keep the pixel histogram on the exact luminance-per-pixel law."""
-    from restore.render._local import metropolis_test
-    from restore.render._pss import evaluate, select
-
     n = 8192
+    logdensity = rr.pss_logdensity(TARGET)
 
     @jax.jit
     def final_pixels(key):
         def step(i, x):
             k_move, k_accept = jax.random.split(jax.random.fold_in(key, i))
-            y = evaluate(TARGET, kernel.propose(k_move, x), with_grad=True)
-            coin = jax.random.uniform(k_accept, (n,), jnp.float32)
-            accept, _ = metropolis_test(coin, x, y, kernel.log_correction(x, y))
-            return select(accept, y, x)
+            keys_move, keys_accept = jax.random.split(k_move, n), jax.random.split(k_accept, n)
+            moves = jax.vmap(lambda k, p: kernel.propose(k, p, logdensity)[0])(keys_move, x)
+            y = rr.evaluate_points(TARGET, moves, with_grad=True)
+            return jax.vmap(lambda k, p, q: kernel.accept(k, p, q, None)[0])(keys_accept, x, y)
 
-        start = evaluate(TARGET, TARGET.sample(jax.random.fold_in(key, 10**6), n), with_grad=True)
-        return TARGET.pixel_index(jax.lax.fori_loop(0, 30, step, start).u)
+        start = rr.evaluate_points(TARGET, TARGET.sample(jax.random.fold_in(key, 10**6), n), with_grad=True)
+        return TARGET.pixel_index(jax.lax.fori_loop(0, 30, step, start).position)
 
     counts = np.bincount(np.asarray(final_pixels(jax.random.key(0))), minlength=64)
     expected = n * (EXACT @ [0.2126, 0.7152, 0.0722]).ravel() / (64 * TARGET.Z)
@@ -250,9 +262,9 @@ def test_bad_inputs_raise_clear_errors():
     with pytest.raises(ValueError, match="chains_per_seed"):
         rr.ERPT(chains_per_seed=-1)
     with pytest.raises(ValueError, match="s1 < s2"):
-        rr.KelemenMutation(s1=0.1, s2=0.01)
+        KelemenMutation(s1=0.1, s2=0.01)
     with pytest.raises(ValueError, match="sigma"):
-        rr.WrappedGaussianMutation(0.0)
+        WrappedGaussianMutation(0.0)
     with pytest.raises(ValueError, match="step_size"):
         rr.MALARestore(step_size=1.0)
     renderer = rr.UniformSampler()
