@@ -36,8 +36,9 @@ from ._checkpoint import (
     read_header,
     save_checkpoint,
 )
+from ._driver import Budget, Meter, drive
 from ._observables import Observables
-from ._progress import console_note, progress_bar
+from ._progress import console_note
 from ._result import SampleResult
 from ._sampler import AbstractSampler, check_sampler
 from ._sharding import (
@@ -524,34 +525,38 @@ def sample(
             trace_rows.append(chunk_totals(host_sums, advanced.step, steps_taken))
         return _Run(_restart(advanced, sharding), sums, histogram, tails), int(steps_taken)
 
-    start, interrupted = time.perf_counter(), False
     trace_rows: list[tuple] = []  # per-chunk totals, from the sums each chunk drains anyway
-    elapsed = lambda: spent + time.perf_counter() - start
     label = f"{type(sampler).__name__}: {num_lanes} lanes"
     if sharding is not None:
         label += f" on {sharding.num_devices} devices"
-    next_save = math.inf if checkpoint_steps is None else (done // checkpoint_steps + 1) * checkpoint_steps
-    with progress_bar(num_steps, label, enabled=progress, completed=done) as show:
-        try:
-            while done < num_steps:
-                length = min(chunk, num_steps - done)  # a chunk stops early when a lane's tour records are full
-                advanced = jax.block_until_ready(advance_and_drain(run, length, False))
-                run = advanced[0]  # one assignment: all or nothing
-                done = int(run.carry.step)
-                show(advanced[1])
-                if saver is not None and (
-                    done == num_steps
-                    or done >= next_save
-                    or (checkpoint_seconds is not None and saver.seconds_since_save() >= checkpoint_seconds)
-                ):
-                    saver.save(run, done=done, wall_time=elapsed())
-                    next_save = math.inf if checkpoint_steps is None else (done // checkpoint_steps + 1) * checkpoint_steps
-        except KeyboardInterrupt:
-            interrupted = True
-            done = int(run.carry.step)  # the last chunk that finished
-            if saver is not None and run.sums is not None:
-                saver.save(run, done=done, wall_time=elapsed())
-            warnings.warn(f"interrupted after {done} of {num_steps} steps; returning the partial result", stacklevel=2)
+
+    def advance(length: int) -> int:
+        nonlocal run
+        advanced = jax.block_until_ready(advance_and_drain(run, length, False))
+        run = advanced[0]  # one assignment: all or nothing
+        return advanced[1]
+
+    def save(_steps: int, wall_time: float) -> None:
+        assert saver is not None
+        saver.save(run, done=int(run.carry.step), wall_time=wall_time)  # the committed run's own count
+
+    outcome = drive(
+        advance,
+        budget=Budget(steps=num_steps),
+        chunk=chunk,  # a chunk stops early when a lane's tour records are full
+        done=done,
+        spent=spent,
+        meter=Meter(progress, label, num_steps, "steps", completed=done),
+        save=save if saver is not None else None,
+        save_every_steps=checkpoint_steps,
+        save_every_seconds=checkpoint_seconds,
+    )
+    interrupted, done = outcome.interrupted, outcome.steps
+    session_start, spent = time.perf_counter(), outcome.elapsed
+    elapsed = lambda: spent + time.perf_counter() - session_start  # noqa: E731
+    if interrupted:
+        done = int(run.carry.step)  # the last chunk that finished
+        warnings.warn(f"interrupted after {done} of {num_steps} steps; returning the partial result", stacklevel=2)
     if run.sums is None:  # interrupted before the first chunk finished: nothing to report yet
         host = to_host((run.carry.sums, run.carry.histogram))
         run = run._replace(sums=drain_sums(None, host[0]), histogram=drain_histogram(None, host[1]))

@@ -1,0 +1,180 @@
+"""The run driver that `restore.sample` and `restore.render.render` share.
+
+A run is a sequence of jitted chunks separated by host steps. The driver owns the host
+side: how long each chunk is (a fixed length, or sized from the measured time per step
+under a time budget), the progress meter, the checkpoint cadence (every so many steps
+and/or seconds, when the budget is spent, on Ctrl-C) and Ctrl-C itself. What a run
+accumulates is pluggable: the caller's `advance(n)` runs a chunk of at most `n` steps
+with its own accumulators (the lane sums, tour histogram and tour records of
+`restore.sample`; the film of a renderer), drains them into float64 host totals and
+commits the new state in one assignment, so an interrupt never leaves a chunk half
+counted.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import math
+import time
+from collections.abc import Callable, Iterator
+
+
+@dataclasses.dataclass(frozen=True)
+class Budget:
+    """When a run stops: after `steps` steps per lane, after `seconds` of wall time, or at the first of both.
+
+    Under a time budget the first chunk is a single step (to measure the time per step)
+    and later chunks are cut to the time left, in slices of at most a twentieth of the
+    budget (and 2 s), so that the run stops within about one step of the budget.
+    """
+
+    steps: int | None = None
+    seconds: float | None = None
+
+    def __post_init__(self):
+        if self.steps is None and self.seconds is None:
+            raise ValueError("a budget needs steps, seconds or both")
+
+
+@dataclasses.dataclass(frozen=True)
+class Outcome:
+    """How a driven run ended: steps per lane done, whether Ctrl-C stopped it, wall time spent
+    (earlier sessions of a resumed run included), and whether any chunk was committed."""
+
+    steps: int
+    interrupted: bool
+    elapsed: float
+    advanced: bool
+
+
+class Meter:
+    """A rich progress bar, advanced between chunks; a no-op when disabled.
+
+    Arguments:
+        enabled: show the bar.
+        description: the text before the bar.
+        total: the budget in the bar's unit.
+        unit: e.g. `"steps"`, `"evals"`, `"s"`.
+        completed: units already done (a resumed run).
+    """
+
+    def __init__(self, enabled: bool, description: str, total: float, unit: str, completed: float = 0):
+        self.enabled, self.description, self.total, self.unit, self.completed = (
+            enabled,
+            description,
+            total,
+            unit,
+            completed,
+        )
+        self._bar = self._task = None
+
+    @contextlib.contextmanager
+    def shown(self) -> Iterator[Meter]:
+        if not self.enabled:
+            yield self
+            return
+        from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+        done = (
+            "{task.completed:,.0f}/{task.total:,.0f}" if self.unit != "s" else "{task.completed:.3g}/{task.total:.3g}"
+        )
+        columns = (
+            TextColumn("{task.description}"),
+            BarColumn(),
+            TextColumn(done + " " + self.unit),
+            TextColumn("{task.fields[rate]}"),
+            TimeElapsedColumn(),
+            TimeRemainingColumn(),
+        )
+        with Progress(*columns, transient=False) as bar:
+            self._bar = bar
+            self._task = bar.add_task(self.description, total=self.total, completed=self.completed, rate="")
+            try:
+                yield self
+            finally:
+                self._bar = None
+
+    def update(self, completed: float, rate: str = "") -> None:
+        if self._bar is not None:
+            self._bar.update(self._task, completed=min(completed, self.total), rate=rate)
+
+
+def drive(
+    advance: Callable[[int], int],
+    *,
+    budget: Budget,
+    chunk: int,
+    done: int = 0,
+    spent: float = 0.0,
+    meter: Meter | None = None,
+    report: Callable[[int, float], tuple[float, str]] = lambda steps, elapsed: (steps, ""),
+    on_chunk: Callable[[], None] | None = None,
+    save: Callable[[int, float], None] | None = None,
+    save_every_steps: int | None = None,
+    save_every_seconds: float | None = None,
+) -> Outcome:
+    """Run chunks until the budget is spent or Ctrl-C, with progress and checkpoints.
+
+    Arguments:
+        advance: `advance(n)` runs at most `n` more steps (a chunk may stop early, e.g. when
+            tour records are full), commits them and returns the steps taken.
+        budget: when to stop.
+        chunk: steps per chunk (the chunk boundaries fix the random keys: with a step
+            budget the same arguments give the same chunks, so results do not depend on
+            checkpoints or interrupts).
+        done: steps already done (a resumed run).
+        spent: wall time already spent (a resumed run).
+        meter: the progress meter.
+        report: `(steps done, elapsed) -> (meter position, rate text)`.
+        on_chunk: called after every committed chunk (progressive output).
+        save: `save(steps done, elapsed)` writes a checkpoint of the committed state: called
+            every `save_every_steps` steps (at the first chunk boundary at or after each
+            multiple) and every `save_every_seconds`, when the budget is spent, and on
+            Ctrl-C once a chunk was committed.
+
+    Returns:
+        The `Outcome`.
+    """
+    meter = meter or Meter(False, "", 1, "")
+    start = time.perf_counter()
+    first, last_save, interrupted = done, time.perf_counter(), False
+    saved = done
+    elapsed = lambda: spent + time.perf_counter() - start  # noqa: E731
+
+    def next_mark(steps: int) -> float:
+        return math.inf if save_every_steps is None else (steps // save_every_steps + 1) * save_every_steps
+
+    def write():
+        nonlocal last_save, saved
+        if save is not None and done > saved:  # only progress is worth a write
+            save(done, elapsed())
+            last_save, saved = time.perf_counter(), done
+
+    mark = next_mark(done)
+    with meter.shown():
+        try:
+            while budget.steps is None or done < budget.steps:
+                n = chunk if budget.steps is None else min(chunk, budget.steps - done)
+                if budget.seconds is not None:
+                    if elapsed() >= budget.seconds and done > 0:  # at least one step, ever
+                        break
+                    if done == first:
+                        n = 1  # measure the time per step before committing to a chunk
+                    else:
+                        per_step = max((time.perf_counter() - start) / (done - first), 1e-9)
+                        slice_ = min(2.0, max(budget.seconds / 20, 0.05))
+                        n = min(n, max(1, math.ceil(min(budget.seconds - elapsed(), slice_) / per_step)))
+                done += advance(n)
+                meter.update(*report(done, elapsed()))
+                if on_chunk is not None:
+                    on_chunk()
+                if done >= mark or (
+                    save_every_seconds is not None and time.perf_counter() - last_save >= save_every_seconds
+                ):
+                    write()
+                    mark = next_mark(done)
+        except KeyboardInterrupt:
+            interrupted = True
+    write()
+    return Outcome(done, interrupted, elapsed(), done > first)
