@@ -53,9 +53,11 @@ class PilotEstimate(NamedTuple):
 
 
 @eqx.filter_jit
-def _pilot_terms(logdensity_fn, regeneration, draws):
-    """`log p` and `log u` at the pilot draws (one compiled program per log density and
-    regeneration structure, reused by later calibrations)."""
+def _pilot_terms(logdensity_fn, regeneration, key, num_draws: int):
+    """`log p` and `log u` at `num_draws` draws of the regeneration, drawn and evaluated in one
+    compiled program (per log density, regeneration structure and size; reused by later
+    calibrations), where drawing outside it compiled every operation of the draw on its own."""
+    draws = regeneration.sample(key, (num_draws,))
     log_p = jax.vmap(logdensity_fn)(draws)
     log_u = jax.vmap(regeneration.log_prob)(draws)
     return log_p, log_u
@@ -68,8 +70,7 @@ def pilot_log_z(
     num_draws: int,
 ) -> PilotEstimate:
     """Estimate `log Z` by importance sampling from the regeneration distribution."""
-    draws = regeneration.sample(key, (num_draws,))
-    log_p, log_u = _pilot_terms(logdensity_fn, regeneration, draws)
+    log_p, log_u = _pilot_terms(logdensity_fn, regeneration, key, num_draws)
     log_p, log_u = np.asarray(log_p, dtype=np.float64), np.asarray(log_u, dtype=np.float64)
     invalid = np.isnan(log_p) | (log_p == np.inf)  # treated as zero density, as in the run
     log_w = np.where(invalid, -np.inf, log_p - log_u)

@@ -212,8 +212,11 @@ class AbstractRestore(AbstractSampler):
         With another phase rule the tours' own phases count (`expected_tour_times`)."""
         if self.log_rate is None:
             return None
-        rates = jnp.atleast_1d(jnp.asarray(self.log_rate, jnp.float64 if jax.config.jax_enable_x64 else jnp.float32))  # type: ignore[attr-defined]
-        return float(-(jax.nn.logsumexp(-rates) - math.log(rates.shape[0])))
+        rates = np.atleast_1d(np.asarray(self.log_rate, np.float64))  # on the host: no eager device ops to compile
+        if not jax.config.jax_enable_x64:  # type: ignore[attr-defined]
+            rates = rates.astype(np.float32)
+        top = np.max(-rates)
+        return float(-(top + np.log(np.sum(np.exp(-rates - top))) - math.log(rates.shape[0])))
 
     def phase_of_tour(self, tour: Int[Array, "*n"]) -> Int[Array, "*n"]:
         """The phase that tour number `tour` of a lane uses (tour 0, started by `init`, uses phase 0)."""

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import os
@@ -72,7 +73,8 @@ class _Carry(NamedTuple):
     step: Array
 
 
-def _lane_keys(key: PRNGKeyArray, num_lanes: int, first_lane: int = 0) -> Array:
+@functools.partial(jax.jit, static_argnums=1)
+def _lane_keys(key: PRNGKeyArray, num_lanes: int, first_lane: int | Array = 0) -> Array:
     """One key per lane, independent of how many lanes there are (lane `i` is reproducible)."""
     return jax.vmap(lambda i: jax.random.fold_in(key, i))(first_lane + jnp.arange(num_lanes))
 
@@ -91,6 +93,12 @@ def _init(sampler, keys: Array, positions: Array | None, sharding: LaneSharding 
 def _active(carry: _Carry) -> Array:
     """Lanes inside a tour that counts (an open tour after a regeneration)."""
     return (carry.sums.open_steps > 0) & ~carry.sums.skip_first
+
+
+@jax.jit
+def _count_active(carry: _Carry) -> Array:
+    """How many lanes are still inside a tour that counts (one compiled program, not one per operation)."""
+    return jnp.sum(_active(carry))
 
 
 @eqx.filter_jit
@@ -476,7 +484,7 @@ def sample(
     lane_keys = _lane_keys(key_run, num_lanes, first_lane)
     layout = None
     if sharding is None:
-        carry = start_carry(states)
+        carry = jax.jit(start_carry)(states)  # one compiled program rather than one per array
     else:  # created in place on the devices, each holding its own lanes
         layout = _carry_shardings(jax.eval_shape(start_carry, states), sharding)
         carry = jax.jit(start_carry, in_shardings=(layout.states,), out_shardings=layout)(states)
@@ -563,7 +571,7 @@ def sample(
     if has_tours and not interrupted and finish_tours and not finished:
         try:
             ended, extra = advance_and_drain(run, num_steps, True)
-            extra, still_open = int(extra), int(np.sum(_active(ended.carry)))
+            extra, still_open = int(extra), int(_count_active(ended.carry))
             run, finishing_steps, unfinished = ended, extra, still_open
         except KeyboardInterrupt:  # keep the budget's result; its open tours are dropped
             interrupted = True
