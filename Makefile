@@ -28,6 +28,7 @@ lint: $(VENV)/.installed
 	$(BIN)/lint-imports
 
 bench: $(VENV)/.installed
+	$(BIN)/python examples/benchmark_speed.py
 	$(BIN)/python examples/benchmark_core.py
 	$(BIN)/python examples/benchmark_general.py
 

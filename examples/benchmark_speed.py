@@ -1,0 +1,162 @@
+"""Speed of the core against BlackJAX RMH, side by side in one run.
+
+For each set-up, on the same target with the same number of lanes and steps and the same
+random-walk scale, it measures (median of repeats; compilation excluded from the rates):
+
+- BlackJAX RMH: `lax.scan` over `vmap(step)`, keeping a running sum of positions (the
+  yardstick: the cheapest useful MCMC loop);
+- the bare jump-Restore step: `lax.scan` over `vmap(JumpRestore.step)` with a running
+  Rao-Blackwellised sum (the step alone, without the driver);
+- `restore.sample` with `JumpRestore` (everything a user gets: the streamed tour sums,
+  the tour histogram and tail records, default observables `x` and `x**2`);
+- `restore.sample` with `MixtureMH` (the Metropolis baseline with the same large step);
+
+and prints steps per second, the ratio to BlackJAX, and the time to the first result of
+one call (tracing, compilation, the pilot) against BlackJAX's compilation time. BlackJAX
+runs first in each set-up, so the process's one-time start-up is charged to it.
+
+Usage: python examples/benchmark_speed.py [--lanes 512] [--steps 1500] [--dim 10] [--repeats 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+jax.config.update("jax_enable_x64", True)
+
+import blackjax  # noqa: E402
+
+import restore  # noqa: E402
+from restore.local import RandomWalk  # noqa: E402
+from restore.regeneration import Gaussian, laplace_mixture  # noqa: E402
+from targets.analytic import well_separated_gaussian_mixture  # noqa: E402
+
+
+def blackjax_rmh(logdensity, scale: float, x0, steps: int, repeats: int) -> tuple[float, float]:
+    """Steps per second and compile seconds of BlackJAX's Gaussian random-walk Metropolis."""
+    lanes, dim = x0.shape
+    rmh = blackjax.additive_step_random_walk.normal_random_walk(logdensity, scale * jnp.ones(dim))
+
+    def run(key, x0):
+        def body(carry, key):
+            states, total = carry
+            states, _ = jax.vmap(rmh.step)(jax.random.split(key, lanes), states)
+            return (states, total + states.position), None
+
+        start = (jax.vmap(rmh.init)(x0), jnp.zeros_like(x0))
+        return jax.lax.scan(body, start, jax.random.split(key, steps))[0][1]
+
+    return _time_compiled(run, x0, lanes * steps, repeats)
+
+
+def bare_restore_step(sampler, lanes: int, steps: int, repeats: int) -> tuple[float, float]:
+    """Steps per second of `vmap(JumpRestore.step)` in a scan, with a Rao-Blackwellised running sum."""
+    states = jax.vmap(sampler.init)(jax.random.split(jax.random.key(0), lanes))
+
+    def run(key, states):
+        def body(carry, key):
+            states, total = carry
+            states, info = jax.vmap(sampler.step)(jax.random.split(key, lanes), states)
+            return (states, total + info.expected_holding_time[:, None] * info.position), None
+
+        start = (states, jnp.zeros_like(states.position))
+        return jax.lax.scan(body, start, jax.random.split(key, steps))[0][1]
+
+    return _time_compiled(run, states, lanes * steps, repeats)
+
+
+def _time_compiled(run, argument, work: int, repeats: int) -> tuple[float, float]:
+    start = time.perf_counter()
+    compiled = jax.jit(run).lower(jax.random.key(0), argument).compile()
+    compile_seconds = time.perf_counter() - start
+    jax.block_until_ready(compiled(jax.random.key(0), argument))
+    times = []
+    for i in range(repeats):
+        start = time.perf_counter()
+        jax.block_until_ready(compiled(jax.random.key(i + 1), argument))
+        times.append(time.perf_counter() - start)
+    return work / float(np.median(times)), compile_seconds
+
+
+def restore_sample(sampler, lanes: int, steps: int, repeats: int) -> tuple[float, float]:
+    """Steps per second of `restore.sample`'s run (median of repeats), and the first call's extra
+    seconds: its whole duration minus the median whole duration of the later calls."""
+    kwargs = dict(num_lanes=lanes, num_steps=steps, progress=False, max_draws=0, num_chunks=1)
+    calls, runs = [], []
+    for i in range(repeats + 1):
+        start = time.perf_counter()
+        result = restore.sample(sampler, jax.random.key(i), **kwargs)
+        calls.append(time.perf_counter() - start)
+        runs.append(result.wall_time)
+    return lanes * steps / float(np.median(runs[1:])), calls[0] - float(np.median(calls[1:]))
+
+
+def report(name: str, rates: dict[str, tuple[float, float]]) -> None:
+    base_rate, base_compile = rates["BlackJAX RMH"]
+    print(f"\n{name}")
+    print(f"{'':34s} {'M steps/s':>10s} {'/ BlackJAX':>11s} {'compile s':>10s} {'/ BlackJAX':>11s}")
+    for label, (rate, seconds) in rates.items():
+        print(f"{label:34s} {rate / 1e6:10.3f} {rate / base_rate:11.2f} {seconds:10.2f} {seconds / base_compile:11.2f}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--lanes", type=int, default=512)
+    parser.add_argument("--steps", type=int, default=1500)
+    parser.add_argument("--dim", type=int, default=10)
+    parser.add_argument("--repeats", type=int, default=3)
+    args = parser.parse_args()
+    lanes, steps, dim, repeats = args.lanes, args.steps, args.dim, args.repeats
+    print(f"machine: {platform.processor() or platform.machine()}, {jax.device_count()} {jax.default_backend()} device(s), jax {jax.__version__}")
+    print(f"{lanes} lanes x {steps} steps, {dim}-d, float64; compile s: BlackJAX's jit compilation, "
+          "restore.sample's first call minus its run time (tracing, compilation, pilot)")
+
+    def normal(x):
+        return -0.5 * jnp.sum(x**2)
+
+    gaussian = Gaussian(jnp.zeros(dim), 2.25 * jnp.eye(dim))
+    local = RandomWalk(0.75)
+    jump = restore.JumpRestore(normal, local, gaussian, tour_length=10.0)
+    x0 = jax.random.normal(jax.random.key(1), (lanes, dim))
+    report(
+        "1. standard normal target, Gaussian(0, 2.25 I) regeneration, RandomWalk(0.75), T = 10",
+        {
+            "BlackJAX RMH": blackjax_rmh(normal, 0.75, x0, steps, repeats),
+            "JumpRestore step (no driver)": bare_restore_step(jump.calibrate(jax.random.key(9))[0], lanes, steps, repeats),
+            "restore.sample(JumpRestore)": restore_sample(jump, lanes, steps, repeats),
+            "restore.sample(MixtureMH)": restore_sample(
+                restore.MixtureMH(normal, local, gaussian, large_step_probability=0.1), lanes, steps, repeats
+            ),
+        },
+    )
+
+    target = well_separated_gaussian_mixture(dim, 3, separation=8.0)
+    starts = 6.0 * jax.random.normal(jax.random.key(0), (64, dim))
+    laplace = laplace_mixture(target.logdensity, starts, tails="student_t", df=5.0, weights="equal")
+    scale = 2.38 / np.sqrt(dim)
+    demo = restore.JumpRestore(target.logdensity, RandomWalk(scale), laplace, tour_length=10.0)
+    x0 = target.sample(jax.random.key(1), lanes)
+    report(
+        f"2. the demo: 3-mode Gaussian mixture, Student-t Laplace mixture ({len(laplace.components)} components), T = 10",
+        {
+            "BlackJAX RMH": blackjax_rmh(target.logdensity, scale, x0, steps, repeats),
+            "JumpRestore step (no driver)": bare_restore_step(demo.calibrate(jax.random.key(9))[0], lanes, steps, repeats),
+            "restore.sample(JumpRestore)": restore_sample(demo, lanes, steps, repeats),
+            "restore.sample(MixtureMH)": restore_sample(
+                restore.MixtureMH(target.logdensity, RandomWalk(scale), laplace, large_step_probability=0.1),
+                lanes,
+                steps,
+                repeats,
+            ),
+        },
+    )
+
+
+if __name__ == "__main__":
+    main()
