@@ -39,13 +39,12 @@ class Budget:
 
 @dataclasses.dataclass(frozen=True)
 class Outcome:
-    """How a driven run ended: steps per lane done, whether Ctrl-C stopped it, wall time spent
-    (earlier sessions of a resumed run included), and whether any chunk was committed."""
+    """How a driven run ended: steps per lane done, whether Ctrl-C stopped it, and the wall time
+    spent (earlier sessions of a resumed run included)."""
 
     steps: int
     interrupted: bool
     elapsed: float
-    advanced: bool
 
 
 class Meter:
@@ -177,4 +176,4 @@ def drive(
         except KeyboardInterrupt:
             interrupted = True
     write()
-    return Outcome(done, interrupted, elapsed(), done > first)
+    return Outcome(done, interrupted, elapsed())

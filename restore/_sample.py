@@ -241,10 +241,6 @@ class _Saver:
 
     def __init__(self, path, fingerprint: dict, layout: _Carry | None, tails: TourTails):
         self.path, self.fingerprint, self.layout, self.tails = path, fingerprint, layout, tails
-        self.last = time.perf_counter()
-
-    def seconds_since_save(self) -> float:
-        return time.perf_counter() - self.last
 
     def save(self, run: _Run, *, done: int, wall_time: float, finished=False, finishing_steps=0, unfinished=0):
         """Write the run to the file. With several processes every process gathers the run (a
@@ -255,7 +251,6 @@ class _Saver:
         if jax.process_index() == 0:
             save_checkpoint(self.path, host, header)
         wait_for_every_process(f"restore checkpoint {done} {finished}")
-        self.last = time.perf_counter()
 
     def should_resume(self, resume: bool) -> bool:
         """Whether to continue from the file. With several processes all must find the same
@@ -282,7 +277,6 @@ class _Saver:
             restored = jax.tree.map(put, run.carry, self.layout)
         else:
             restored = jax.tree.map(jnp.asarray, run.carry)
-        self.last = time.perf_counter()
         return run._replace(carry=restored), header
 
 

@@ -2,8 +2,7 @@
 
 from __future__ import annotations
 
-from ..local import AbstractTorusMutation as AbstractMutation
-from ..local import KelemenMutation
+from ..local import AbstractTorusMutation, KelemenMutation
 from ._erpt import ERPT
 from ._mala_restore import MALARestore
 from ._metropolis_restore import MetropolisRestore
@@ -20,7 +19,7 @@ def make_renderer(
     method: str,
     *,
     tour_length: float = 32.0,
-    mutation: AbstractMutation | None = None,
+    mutation: AbstractTorusMutation | None = None,
     step_size: float = 1e-4,
 ) -> AbstractRenderer:
     """The PSS renderer called `method`, with parameters matched across methods.
