@@ -15,6 +15,7 @@ import numpy as np
 
 from .._checkpoint import key_fingerprint, load_checkpoint, save_checkpoint
 from .._driver import Budget, Meter, drive
+from .._progress import console_note
 from .._validation import check_interval
 from ._pss import check_target
 from ._renderer import (
@@ -43,11 +44,15 @@ class RenderResult:
         seconds: wall time of the run (initialisation, steps and `on_update` calls),
             compilation excluded.
         compile_seconds: time spent compiling the jitted initialisation and chunk.
-        steps: renderer steps taken per lane.
+        steps: renderer steps taken per lane within the budget.
         lanes: number of lanes.
         statistics: renderer diagnostics (acceptance rate, tours, `c`, `Z_hat`, ...).
         interrupted: the run was stopped by Ctrl-C (KeyboardInterrupt); the image holds
             every chunk finished before it.
+        finishing_steps: steps taken after the budget to complete open work (Restore's
+            open tours with `complete_tours`), on all lanes at first and then on the few
+            lanes still open; their evaluations and time are included in `evaluations`
+            and `seconds`.
     """
 
     image: np.ndarray
@@ -58,6 +63,7 @@ class RenderResult:
     lanes: int
     statistics: dict[str, float]
     interrupted: bool = False
+    finishing_steps: int = 0
 
     @property
     def evaluations_per_second(self) -> float:
@@ -112,6 +118,13 @@ def render(
     (`lanes` for all but `ERPT`, whose step is a round). `seconds` is checked between
     chunks; near the end the chunk is shortened from the measured time per step, so the
     run overshoots by at most about one step. With both, the first spent stops the run.
+
+    Finishing: a renderer with open work at the end of the budget (`renderer.finishes`:
+    Restore with complete tours) then starts nothing new and steps until that work is
+    done; once few lanes are open they move into a small batch (`max(64, lanes / 64)`
+    lanes, compiled ahead) so that a few long tours do not cost a full batch per step.
+    Finishing comes on top of the budget: its steps and time are in `finishing_steps`,
+    `evaluations` and `seconds`.
 
     Arguments:
         target: a PSS target (`restore.render.PSSTarget`).
@@ -182,24 +195,30 @@ def render(
         "seconds": seconds,
     }
     state, totals, steps, chunks, spent = None, None, 0, 0, 0.0
+    finishing, finishing_evaluations, finished = 0, 0, False
     if checkpoint is not None and resume and os.path.exists(checkpoint):  # checked before any compilation
         tally_like = jax.tree.map(lambda x: np.zeros(x.shape, host_tally_dtype(x)), state_shape.tally)
         (state, totals), header = load_checkpoint(checkpoint, (state_shape, tally_like), fingerprint)
         state = jax.tree.map(jnp.asarray, state)
         steps, chunks, spent = header["steps"], header["chunks"], header["seconds_spent"]
+        finishing, finished = header.get("finishing_steps", 0), header.get("finished", False)
+        finishing_evaluations = header.get("finishing_evaluations", 0)
     done = (max_steps is not None and steps >= max_steps) or (seconds is not None and spent >= seconds)
 
     t0 = time.perf_counter()
     if state is None:
         init_fn = jax.jit(lambda k: renderer.init(target, k, lanes)).lower(key_init).compile()
-    if not done:
-        n_spec = jax.ShapeDtypeStruct((), jnp.int32)
+    n_spec = jax.ShapeDtypeStruct((), jnp.int32)
+    # One throwaway call of each compiled function, so that a target's own first-call work (e.g.
+    # Dr.Jit recording its kernels for these batch sizes) is paid here, outside the budget.
+    warm_key = jax.random.fold_in(key_init, 1)
+    finishes = renderer.finishes and not finished
+    warm_state = (init_fn(warm_key) if state is None else state) if not done or finishes else None
+    if not done or finishes:  # finishing steps all lanes with the same chunk until few are open
         chunk_fn = jax.jit(lambda k, s, n: renderer.run(target, k, s, n)).lower(key_run, state_shape, n_spec).compile()
-        # One throwaway step, so that a target's own first-call work (e.g. Dr.Jit recording its
-        # kernels for these batch sizes) is paid here, outside the budget, as with any compilation.
-        warm_key = jax.random.fold_in(key_init, 1)
-        warm_state = init_fn(warm_key) if state is None else state
         jax.block_until_ready(chunk_fn(warm_key, warm_state, jnp.asarray(1, jnp.int32)))
+    if finishes:
+        small_batch = _small_batch(renderer, target, lanes, state_shape, warm_key, warm_state)
     compile_seconds = time.perf_counter() - t0
 
     start = time.perf_counter()
@@ -227,7 +246,10 @@ def render(
             on_update(image, _as_floats(renderer.statistics(params, totals)))
 
     def save(steps_done: int, elapsed: float) -> None:
-        header = dict(fingerprint, steps=steps_done, chunks=chunks, seconds_spent=elapsed)
+        header = dict(
+            fingerprint, steps=steps_done, chunks=chunks, seconds_spent=elapsed, finishing_steps=finishing,
+            finishing_evaluations=finishing_evaluations, finished=finished,
+        )
         save_checkpoint(checkpoint, (state, totals), header)
 
     outcome = drive(
@@ -245,14 +267,88 @@ def render(
     if outcome.interrupted and totals is None:
         raise KeyboardInterrupt  # nothing finished to keep
     steps, interrupted, wall = outcome.steps, outcome.interrupted, outcome.elapsed
+    if renderer.finishes and not interrupted and not finished:
+        # `state` stays the one at the end of the budget: the checkpoint keeps it, with the
+        # totals, as the start of finishing (or, once done, with `finished` set)
+        (totals, chunks, taken, taken_evaluations, seconds_taken), interrupted = _finish(
+            renderer, chunk_fn, small_batch, state, totals, key_run, chunks, chunk, progress, lanes, step_cost
+        )
+        finishing, finishing_evaluations = finishing + taken, finishing_evaluations + taken_evaluations
+        wall += seconds_taken
+        if not interrupted:
+            finished = True
+            update()
+            if checkpoint is not None:
+                save(steps, wall)
     image = np.asarray(renderer.image(target, state, totals), np.float32)
+    statistics = _as_floats(renderer.statistics(params, totals))
+    if renderer.finishes:
+        statistics["finishing_steps"] = float(finishing)
     return RenderResult(
         image=image,
-        evaluations=init_cost + steps * step_cost,
+        evaluations=init_cost + steps * step_cost + finishing_evaluations,
         seconds=wall,
         compile_seconds=compile_seconds,
         steps=steps,
         lanes=lanes,
-        statistics=_as_floats(renderer.statistics(params, totals)),
+        statistics=statistics,
         interrupted=interrupted,
+        finishing_steps=finishing,
     )
+
+
+#: Finishing moves the last open work into a batch of `max(_SMALL_BATCH, lanes // 64)` lanes.
+_SMALL_BATCH = 64
+#: Steps per call while finishing on all lanes (the open count is checked between calls).
+_FINISHING_CHUNK = 8
+
+
+def _small_batch(renderer, target, lanes, state_shape, warm_key, warm_state):
+    """`(size, compact, finish)` compiled for the small batch that the last open work moves
+    into, or `None` for runs of fewer than 8 times as many lanes (512 at least). Both are
+    called once here, outside the budget (Dr.Jit records its kernels for each batch size)."""
+    size = max(_SMALL_BATCH, lanes // 64)
+    if lanes < 8 * size:  # a batch this narrow costs little more per step than the small one
+        return None
+    compact = jax.jit(lambda s: renderer.compact(s, size)).lower(state_shape).compile()
+    shape = jax.eval_shape(lambda s: renderer.compact(s, size), state_shape)
+    key_spec = jax.eval_shape(lambda: warm_key)
+    n_spec = jax.ShapeDtypeStruct((), jnp.int32)
+    finish = jax.jit(lambda k, s, n: renderer.finish(target, k, s, n)).lower(key_spec, shape, n_spec).compile()
+    jax.block_until_ready(finish(warm_key, compact(warm_state), jnp.asarray(1, jnp.int32)))
+    return size, compact, finish
+
+
+def _finish(renderer, chunk_fn, small_batch, state, totals, key_run, chunks, chunk, progress, lanes, step_cost):
+    """Complete the open work: no new work starts; all lanes step (the run's own compiled
+    chunk, `_FINISHING_CHUNK` steps a call) until the open lanes fit the small batch, which
+    then steps alone until nothing is open. The tallies are drained after every call.
+    Returns `((totals, chunks, steps, evaluations, seconds), interrupted)`; Ctrl-C keeps every
+    call that finished."""
+    start, taken, evaluations = time.perf_counter(), 0, 0
+    state = renderer.stop_starting(state)
+    open_work = renderer.open_tours(state)
+    if open_work and progress:
+        console_note(f"finishing the {open_work} open tours (no new tours start)")
+    size = small_batch[0] if small_batch is not None else 0
+
+    def drain(advanced, n, batch):
+        nonlocal totals, chunks, taken, evaluations
+        drained = host_tally(advanced.tally, totals)
+        totals, chunks = drained, chunks + 1
+        taken, evaluations = taken + n, evaluations + n * batch * step_cost // lanes
+        return zero_tally(advanced)
+
+    try:
+        while renderer.open_tours(state) > size:
+            n = _FINISHING_CHUNK
+            state = drain(chunk_fn(jax.random.fold_in(key_run, chunks), state, jnp.asarray(n, jnp.int32)), n, lanes)
+        if small_batch is not None and renderer.open_tours(state) > 0:
+            _, compact, finish = small_batch
+            state = compact(state)
+            while renderer.open_tours(state) > 0:
+                advanced, n = finish(jax.random.fold_in(key_run, chunks), state, jnp.asarray(chunk, jnp.int32))
+                state = drain(advanced, int(n), size)
+    except KeyboardInterrupt:
+        return (totals, chunks, taken, evaluations, time.perf_counter() - start), True
+    return (totals, chunks, taken, evaluations, time.perf_counter() - start), False

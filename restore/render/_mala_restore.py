@@ -23,18 +23,23 @@ class MALARestore(AbstractPSSRestore):
         tour_length: mean number of local moves per tour `L`; `c = Z_hat / L`.
         rate: give `c` directly instead of `tour_length`.
         n_bootstrap: uniform draws in the bootstrap: `Z_hat` and the lanes' starts.
-        start: `"stationary"` (default): lanes start in the stationary law of the jump
-            chain, `lum + c`, resampled from the bootstrap, which removes the bias of
-            unfinished tours in finite runs; `"uniform"`: at tour starts, as in the paper.
+        complete_tours: (default) lanes start at uniform draws and, when the budget is
+            spent, every open tour runs to its end; the image divides by the number of
+            tours, so it has no bias from unfinished tours (as the paper's authors run it).
+        start: only with `complete_tours=False`: `"stationary"` (default) starts the lanes
+            in the jump chain's stationary law `lum + c`, resampled from the bootstrap;
+            `"uniform"` at tour starts (darker in short runs: tours in bright regions are
+            still open at the end).
     """
 
     def __init__(
         self,
         step_size: float = 1e-4,
         *,
-        tour_length: float = 32.0,
+        tour_length: float = 1.0,
         rate: float | None = None,
         n_bootstrap: int = 65536,
-        start: str = "stationary",
+        start: str | None = None,
+        complete_tours: bool = True,
     ):
-        self._setup(TorusMALA(step_size), tour_length, rate, n_bootstrap, start)
+        self._setup(TorusMALA(step_size), tour_length, rate, n_bootstrap, start, complete_tours)

@@ -12,36 +12,40 @@ class MetropolisRestore(AbstractPSSRestore):
     Local dynamics: Metropolis on luminance with a symmetric small step on the torus
     (`min(1, lum' / lum)`), embedded in continuous time at rate 1; regeneration: uniform
     (PSSMLT's large step); kill rate `gamma = c / lum`. Each step evaluates the target
-    once per lane. The image is `W H c S_j / K` with `S_j` the film of
-    `rgb / lum / (1 + gamma)` and `K` the Rao-Blackwellised number of finished tours (see
+    once per lane. The image is `W H c S_j / N` with `S_j` the film of
+    `rgb / lum / (1 + gamma)` and `N` the number of tours, all run to completion (see
     `restore.render._restore_renderer` for the derivation). The sampler is the core's
     `restore.JumpRestore` with `restore.local.TorusMetropolis` and a uniform regeneration.
 
-    The default `tour_length = 32` local moves per tour: a tour's one uniform start is
-    then amortised over about 32 local moves (about 3% of the evaluations are fresh draws,
-    the same as PSSMLT with `p_large = 1 / 33`), while a budget of a few thousand steps per
-    lane still holds about a hundred tours per lane, so that no single long tour (one that
-    found a bright region) carries much of a lane's estimate. Longer tours explore more
-    locally per fresh draw but make the tour-length tail heavier; the statistics report
-    `tours_per_lane` and `completed_tour_cv`.
+    The default `tour_length = 1` (a tour makes one local move on average; `c` is the
+    bootstrap mean luminance) follows the paper's authors: tours are short where the
+    image is average and last about `lum / c` steps where it is bright, so local
+    exploration goes where it pays; `docs/rendering.md` has the sweep over `L` behind it.
+    The statistics report `tours_per_lane` and `completed_tour_cv`, and `render` the
+    `finishing_steps` spent completing the open tours after the budget.
 
     Arguments:
         mutation: the small step (default `KelemenMutation()`, `s1 = 1/1024`, `s2 = 1/64`).
         tour_length: mean number of local moves per tour `L`; `c = Z_hat / L`.
         rate: give `c` directly instead of `tour_length`.
         n_bootstrap: uniform draws in the bootstrap: `Z_hat` and the lanes' starts.
-        start: `"stationary"` (default): lanes start in the stationary law of the jump
-            chain, `lum + c`, resampled from the bootstrap, which removes the bias of
-            unfinished tours in finite runs; `"uniform"`: at tour starts, as in the paper.
+        complete_tours: (default) lanes start at uniform draws and, when the budget is
+            spent, every open tour runs to its end; the image divides by the number of
+            tours, so it has no bias from unfinished tours (as the paper's authors run it).
+        start: only with `complete_tours=False`: `"stationary"` (default) starts the lanes
+            in the jump chain's stationary law `lum + c`, resampled from the bootstrap;
+            `"uniform"` at tour starts (darker in short runs: tours in bright regions are
+            still open at the end).
     """
 
     def __init__(
         self,
         mutation: AbstractTorusMutation | None = None,
         *,
-        tour_length: float = 32.0,
+        tour_length: float = 1.0,
         rate: float | None = None,
         n_bootstrap: int = 65536,
-        start: str = "stationary",
+        start: str | None = None,
+        complete_tours: bool = True,
     ):
-        self._setup(TorusMetropolis(mutation), tour_length, rate, n_bootstrap, start)
+        self._setup(TorusMetropolis(mutation), tour_length, rate, n_bootstrap, start, complete_tours)

@@ -13,24 +13,37 @@ from .._point import Point
 from ..local import AbstractTorusMutation, KelemenMutation, TorusMetropolis
 from ._film import empty_film, splat
 from ._pss import check_target, evaluate_points, luminance
-from ._renderer import AbstractRenderer, bootstrap_points, bootstrap_size, check_count, check_lanes, ratio, resample
+from ._renderer import (
+    AbstractRenderer,
+    bootstrap_points,
+    bootstrap_size,
+    check_count,
+    check_lanes,
+    ratio,
+    resample,
+    xp_of,
+)
 
 
 class PSSMLTParams(NamedTuple):
-    """Constants: the bootstrap estimate `z_hat` of `Z` and its relative standard error."""
+    """Constants: the bootstrap estimate `z_hat` of `Z`, its relative standard error, and the
+    number of bootstrap draws."""
 
     z_hat: Float[Array, ""]
     z_hat_error: Float[Array, ""]
+    n_bootstrap: Float[Array, ""]
 
 
 class PSSMLTTally(NamedTuple):
-    """Sums: film of expected-value splats, lane steps, acceptances (all and large steps)."""
+    """Sums: film of expected-value splats, lane steps, acceptances (all and large steps), and
+    the luminance of the large-step proposals (uniform draws: each is an unbiased `Z` sample)."""
 
     film: Float[Array, "P 3"]
     lane_steps: Int[Array, ""]
     accepted: Int[Array, ""]
     large_steps: Int[Array, ""]
     large_accepted: Int[Array, ""]
+    large_luminance: Float[Array, ""]
 
 
 class PSSMLTState(NamedTuple):
@@ -51,18 +64,19 @@ class PSSMLT(AbstractRenderer):
     and the proposal with weight `a` (expected-value splatting: the weights are the
     expectation of the next state's indicator, so `E[splat] = E[h(u_next)]`).
 
-    `init` draws `n_bootstrap` uniform points: `Z_hat` = their mean luminance, and the
+    `init` draws `n_bootstrap` uniform points: their mean luminance estimates `Z`, and the
     chains start at bootstrap points resampled in proportion to luminance (sampling
     importance resampling), so they start (approximately, to `O(1 / n_bootstrap)`) in
     the stationary law and need no burn-in (no start-up bias).
 
     Estimator: `I_j = W H Z_hat F_j / (lanes x steps)` with `F_j` the film of weighted
     `rgb / lum`. Each step's splat has expectation `E_p[rgb / lum 1{pixel = j}]` in
-    stationarity, and `W H Z E_p[...] = I_j`.
+    stationarity, and `W H Z E_p[...] = I_j`. `Z_hat` is the mean luminance of the
+    bootstrap and of every large-step proposal (all uniform draws), so its error keeps
+    falling during the run instead of staying at the bootstrap's (`z_hat` in the
+    statistics; `z_bootstrap` is the bootstrap's alone).
 
-    The default `p_large = 0.3` is Kelemen et al.'s. For a comparison with Restore at
-    matched global exploration use `p_large = 1 / (tour_length + 1)`: the share of a
-    Restore run's evaluations that are fresh uniform draws.
+    The default `p_large = 0.3` is Kelemen et al.'s, the value PSSMLT is usually run with.
 
     Arguments:
         mutation: the small step (default `KelemenMutation()`).
@@ -106,8 +120,9 @@ class PSSMLT(AbstractRenderer):
         index = resample(k_pick, lum, lanes)
         point = jax.tree.map(lambda x: x[index], boot)
         i0 = jnp.zeros((), jnp.int32)
-        tally = PSSMLTTally(empty_film(target.num_pixels), i0, i0, i0, i0)
-        return PSSMLTState(point, PSSMLTParams(z, z_err), tally)
+        tally = PSSMLTTally(empty_film(target.num_pixels), i0, i0, i0, i0, jnp.zeros((), jnp.float32))
+        params = PSSMLTParams(z, z_err, jnp.asarray(lum.shape[0], jnp.float32))
+        return PSSMLTState(point, params, tally)
 
     def check(self, params: PSSMLTParams) -> None:
         if not float(params.z_hat) > 0:
@@ -140,17 +155,28 @@ class PSSMLT(AbstractRenderer):
             accepted=tally.accepted + jnp.sum(accept, dtype=jnp.int32),
             large_steps=tally.large_steps + jnp.sum(large, dtype=jnp.int32),
             large_accepted=tally.large_accepted + jnp.sum(accept & large, dtype=jnp.int32),
+            large_luminance=tally.large_luminance + jnp.sum(jnp.where(large, jnp.exp(y.logdensity), 0.0)),
         )
         return PSSMLTState(moved, state.params, tally)
 
+    @staticmethod
+    def z_hat(params: PSSMLTParams, tally: PSSMLTTally):
+        """Mean luminance of all uniform draws: the bootstrap's and the large-step proposals'."""
+        draws = params.n_bootstrap + tally.large_steps
+        return (params.z_hat * params.n_bootstrap + tally.large_luminance) / draws
+
     def scale(self, target, params: PSSMLTParams, tally: PSSMLTTally):
         """`W H Z_hat / (lanes x steps)`."""
-        return ratio(target.num_pixels * params.z_hat, tally.lane_steps)
+        return ratio(target.num_pixels * self.z_hat(params, tally), tally.lane_steps)
 
     def statistics(self, params: PSSMLTParams, tally: PSSMLTTally) -> dict[str, Any]:
+        xp = xp_of(*jax.tree.leaves(tally))
+        draws = params.n_bootstrap + tally.large_steps
         return {
-            "z_hat": params.z_hat,
-            "z_hat_relative_error": params.z_hat_error,
+            "z_hat": self.z_hat(params, tally),
+            "z_hat_relative_error": params.z_hat_error * xp.sqrt(params.n_bootstrap / draws),
+            "z_bootstrap": params.z_hat,
+            "z_bootstrap_relative_error": params.z_hat_error,
             "acceptance_rate": ratio(tally.accepted, tally.lane_steps),
             "large_step_acceptance": ratio(tally.large_accepted, tally.large_steps),
             "small_step_acceptance": ratio(tally.accepted - tally.large_accepted, tally.lane_steps - tally.large_steps),

@@ -106,6 +106,8 @@ class AbstractRenderer(eqx.Module):
     """
 
     uses_gradient: ClassVar[bool] = False
+    #: whether `finish` has work to do after the budget (then `render` calls it)
+    finishes: ClassVar[bool] = False
 
     @abc.abstractmethod
     def init(self, target, key: PRNGKeyArray, lanes: int):
@@ -133,6 +135,26 @@ class AbstractRenderer(eqx.Module):
 
     def check(self, params) -> None:
         """Raise `ValueError` if `init` found the target unusable (host-side, concrete params)."""
+
+    def open_tours(self, state) -> int:
+        """Lanes with unfinished work that `finish` must complete before the image is unbiased
+        (host-side; 0 for renderers whose estimate is valid after any step)."""
+        return 0
+
+    def stop_starting(self, state):
+        """The state with no new work starting (before `finish`); unchanged by default."""
+        return state
+
+    def compact(self, state, size: int):
+        """A state of `size` lanes holding all the open work (at most `size` lanes of it), with
+        a zero tally; only called when `finishes`."""
+        raise NotImplementedError(f"{type(self).__name__} has no open work to compact")
+
+    def finish(self, target, key: PRNGKeyArray, state, max_steps=None, until=0):
+        """Complete the open work after the budget (e.g. Restore's open tours) until at most
+        `until` lanes have any left; returns the state and the steps taken (at most
+        `max_steps` if given). Nothing to do by default."""
+        return state, jnp.zeros((), jnp.int32)
 
     def run(self, target, key: PRNGKeyArray, state, num_steps: Int[Array, ""] | int):
         """`num_steps` steps in a `fori_loop` (the count may be traced: no recompilation)."""

@@ -31,7 +31,17 @@ the expected colour of the point where the tour will be killed, and a tour's kil
 is exactly uniform (the exit law of Restore is its regeneration law): every tour is a
 Rao-Blackwellised path-tracing sample.
 
-**Start.** The embedded jump chain (kill with probability `kappa`, else a local move) has
+**Complete tours (the default).** Lanes start at uniform draws (tour starts) and the
+render counts whole tours: when the budget is spent no new tour starts, every open tour
+runs on until it is killed, and the image is `I_j = W H c S_j / N` with `N` the number of
+tours (all of them finished). Tours are i.i.d. and each has expected splat sum
+`(Z / c) E_p[h]`, so this needs no stationary start and has no unfinished-tour bias, as
+in the paper's authors' renderer. Finishing costs extra steps, reported as
+`finishing_steps`: with `L` about 1 most tours end within a few steps, but a tour in a
+region much brighter than `Z` lasts about `lum / c` steps.
+
+**Start (open tours).** With `complete_tours=False` the run stops at the budget and
+the image uses `K` as above. The embedded jump chain (kill with probability `kappa`, else a local move) has
 the stationary law `pi_J ∝ lum + c`: `(p + c) kappa = c` regenerates uniformly and
 `(p + c)(1 - kappa) = p` is left invariant by `K`. Started in `pi_J`, every step's splat
 and `kappa` have their stationary means, so `E[c S_j] / E[K] = c pi_J(h / (1 + gamma)) /
@@ -55,7 +65,7 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float, Int, PRNGKeyArray
+from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
 from .._jump_restore import JumpRestore
 from .._rate import kill_log_probability
@@ -95,12 +105,13 @@ class RestoreParams(NamedTuple):
 
 
 class RestoreTally(NamedTuple):
-    """Additive sums of a Restore render.
+    """Additive sums of a Restore render (with complete tours, only lanes in a counted tour add).
 
     Attributes:
         film: `sum (1 / (1 + gamma)) rgb / lum` per pixel, `(P, 3)`.
         kill_probability: `K = sum kappa`, the Rao-Blackwellised number of finished tours.
         kills: tours finished (regenerations).
+        restarts: tours started by a kill (the lanes' first tours not included).
         local_moves: local moves proposed.
         accepted: local moves accepted.
         completed_moves: local moves made by finished tours.
@@ -111,6 +122,7 @@ class RestoreTally(NamedTuple):
     film: Float[Array, "P 3"]
     kill_probability: Float[Array, ""]
     kills: Int[Array, ""]
+    restarts: Int[Array, ""]
     local_moves: Int[Array, ""]
     accepted: Int[Array, ""]
     completed_moves: Int[Array, ""]
@@ -120,17 +132,20 @@ class RestoreTally(NamedTuple):
 
 class RestoreRenderState(NamedTuple):
     """State of a Restore render: the core sampler's lane states, each lane's local moves in its
-    current tour, constants and sums."""
+    current tour, which lanes are in a counted tour (`in_tour`), whether new tours still start
+    (`starting`; false once a complete-tours render finishes its open tours), constants and sums."""
 
     lanes: RestoreState
     tour_moves: Int[Array, " N"]
+    in_tour: Bool[Array, " N"]
+    starting: Bool[Array, ""]
     params: RestoreParams
     tally: RestoreTally
 
 
 def _zero_tally(num_pixels: int) -> RestoreTally:
     i0, f0 = jnp.zeros((), jnp.int32), jnp.zeros((), jnp.float32)
-    return RestoreTally(empty_film(num_pixels), f0, i0, i0, i0, i0, f0, i0)
+    return RestoreTally(empty_film(num_pixels), f0, i0, i0, i0, i0, i0, f0, i0)
 
 
 class AbstractPSSRestore(AbstractRenderer):
@@ -144,7 +159,9 @@ class AbstractPSSRestore(AbstractRenderer):
         rate: `c` given directly, or `None`.
         n_bootstrap: uniform draws in the bootstrap (the estimate of `Z` and the
             stationary start); none are made with `rate` given and `start="uniform"`.
-        start: `"stationary"` (default) or `"uniform"`, see the module docstring.
+        start: `"uniform"` (tour starts) or `"stationary"`, see the module docstring.
+        complete_tours: finish every tour started before the budget ends and divide by
+            the number of tours (default); else stop at the budget and divide by `K`.
     """
 
     kernel: AbstractLocalKernel
@@ -152,8 +169,9 @@ class AbstractPSSRestore(AbstractRenderer):
     rate: float | None
     n_bootstrap: int
     start: str
+    complete_tours: bool
 
-    def _setup(self, kernel, tour_length, rate, n_bootstrap, start):
+    def _setup(self, kernel, tour_length, rate, n_bootstrap, start, complete_tours):
         tour_length = float(tour_length)
         if not (math.isfinite(tour_length) and tour_length > 0):
             raise ValueError(f"tour_length must be positive and finite, got {tour_length!r}")
@@ -165,13 +183,24 @@ class AbstractPSSRestore(AbstractRenderer):
         self.tour_length = tour_length
         self.rate = rate
         self.n_bootstrap = check_count(n_bootstrap, "n_bootstrap", 2)
+        if not isinstance(complete_tours, bool):
+            raise TypeError(f"complete_tours must be True or False, got {complete_tours!r}")
+        if start is None:
+            start = "uniform" if complete_tours else "stationary"
         if start not in ("stationary", "uniform"):
             raise ValueError(f"start must be 'stationary' or 'uniform', got {start!r}")
+        if complete_tours and start != "uniform":
+            raise ValueError("complete tours begin at regeneration draws: use start='uniform' (or complete_tours=False)")
         self.start = start
+        self.complete_tours = complete_tours
 
     @property
     def _bootstraps(self) -> bool:
         return self.rate is None or self.start == "stationary"
+
+    @property
+    def finishes(self) -> bool:  # type: ignore[override]
+        return self.complete_tours
 
     @property
     def uses_gradient(self) -> bool:  # type: ignore[override]
@@ -216,8 +245,8 @@ class AbstractPSSRestore(AbstractRenderer):
         else:  # resample the bootstrap with weights lum + c: the jump chain's stationary law
             index = resample(k_pick, lum + params.rate, lanes)
             states = jax.vmap(sampler.init)(keys, boot.position[index])
-        zeros = jnp.zeros(lanes, jnp.int32)
-        return RestoreRenderState(states, zeros, params, _zero_tally(target.num_pixels))
+        zeros, ones = jnp.zeros(lanes, jnp.int32), jnp.ones(lanes, bool)
+        return RestoreRenderState(states, zeros, ones, jnp.asarray(True), params, _zero_tally(target.num_pixels))
 
     def check(self, params: RestoreParams) -> None:
         if self.rate is None and not float(params.z_bootstrap) > 0:
@@ -229,38 +258,87 @@ class AbstractPSSRestore(AbstractRenderer):
 
     def step(self, target, key: PRNGKeyArray, state: RestoreRenderState) -> RestoreRenderState:
         sampler = self.sampler(target, state.params.log_rate)
-        n, tally, moves = state.tour_moves.shape[0], state.tally, state.tour_moves
+        n, tally, moves, counted = state.tour_moves.shape[0], state.tally, state.tour_moves, state.in_tour
         lanes, info = jax.vmap(sampler.step)(jax.random.split(key, n), state.lanes)
         kill = jnp.exp(kill_log_probability(state.lanes.log_kill_rate, jnp.zeros((), jnp.float32)))  # local rate 1
-        killed = info.regenerated
+        killed = info.regenerated & counted
         tally = RestoreTally(
-            film=splat(tally.film, target.pixel_index(info.position), info.expected_holding_time, info.aux),
-            kill_probability=tally.kill_probability + jnp.sum(kill),
+            film=splat(
+                tally.film, target.pixel_index(info.position), jnp.where(counted, info.expected_holding_time, 0.0), info.aux
+            ),
+            kill_probability=tally.kill_probability + jnp.sum(jnp.where(counted, kill, 0.0)),
             kills=tally.kills + jnp.sum(killed, dtype=jnp.int32),
-            local_moves=tally.local_moves + jnp.sum(~killed, dtype=jnp.int32),
-            accepted=tally.accepted + jnp.sum(info.accepted, dtype=jnp.int32),
+            restarts=tally.restarts + jnp.sum(killed & state.starting, dtype=jnp.int32),
+            local_moves=tally.local_moves + jnp.sum(counted & ~info.regenerated, dtype=jnp.int32),
+            accepted=tally.accepted + jnp.sum(counted & info.accepted, dtype=jnp.int32),
             completed_moves=tally.completed_moves + jnp.sum(jnp.where(killed, moves, 0), dtype=jnp.int32),
             completed_moves_sq=tally.completed_moves_sq
             + jnp.sum(jnp.where(killed, moves.astype(jnp.float32) ** 2, 0.0)),
             lane_steps=tally.lane_steps + jnp.int32(n),
         )
-        return RestoreRenderState(lanes, jnp.where(killed, 0, moves + 1), state.params, tally)
+        in_tour = jnp.where(killed, state.starting, counted)  # a killed lane starts a counted tour only while starting
+        tour_moves = jnp.where(info.regenerated, 0, moves + 1)
+        return state._replace(lanes=lanes, tour_moves=tour_moves, in_tour=in_tour, tally=tally)
+
+    def open_tours(self, state: RestoreRenderState) -> int:
+        """Lanes whose counted tour is still running (host-side): `finish` runs them to their end."""
+        return int(jnp.sum(state.in_tour)) if self.complete_tours else 0
+
+    def stop_starting(self, state: RestoreRenderState) -> RestoreRenderState:
+        """No new counted tours from now on: the open ones run to their end."""
+        return state._replace(starting=jnp.zeros_like(state.starting))
+
+    def compact(self, state: RestoreRenderState, size: int) -> RestoreRenderState:
+        """The open lanes (at most `size` of them) moved into a state of `size` lanes, padded with
+        lanes that are not in a counted tour, and a zero tally: finishing a few long tours then
+        costs `size` lanes per step instead of all of them."""
+        index = jnp.argsort(~state.in_tour, stable=True)[:size]  # open lanes first
+        take = lambda x: x[index]  # noqa: E731
+        return state._replace(
+            lanes=jax.tree.map(take, state.lanes), tour_moves=take(state.tour_moves), in_tour=take(state.in_tour),
+            tally=_zero_tally(state.tally.film.shape[0]),
+        )
+
+    def finish(self, target, key: PRNGKeyArray, state: RestoreRenderState, max_steps=None, until=0):
+        """With complete tours: start no new tour and step until at most `until` open tours
+        remain (0: all have ended), or `max_steps` steps if given; returns the state and the
+        steps taken."""
+        if not self.complete_tours:
+            return state, jnp.zeros((), jnp.int32)
+        limit = jnp.iinfo(jnp.int32).max if max_steps is None else max_steps
+
+        def body(carry):
+            i, s = carry
+            return i + 1, self.step(target, jax.random.fold_in(key, i), s)
+
+        steps, state = jax.lax.while_loop(
+            lambda c: (c[0] < limit) & (jnp.sum(c[1].in_tour) > until), body,
+            (jnp.zeros((), jnp.int32), self.stop_starting(state)),
+        )
+        return state, steps
 
     def scale(self, target, params: RestoreParams, tally: RestoreTally):
-        """`W H c / K`: the image is `W H c S_j / K` (module docstring)."""
+        """`W H c / N` (complete tours; `N` = tours started = lanes + kills while starting)
+        or `W H c / K` (open tours): the image is `scale x S_j` (module docstring)."""
+        if self.complete_tours:
+            return ratio(target.num_pixels * params.rate, tally.kills)
         return ratio(target.num_pixels * params.rate, tally.kill_probability)
 
     def statistics(self, params: RestoreParams, tally: RestoreTally) -> dict[str, Any]:
         """Tour and move statistics.
 
-        `mean_tour_length` is the Rao-Blackwellised local moves per tour,
-        `(lane_steps - K) / K`, whose theoretical value is `Z / c`; `z_estimate = c` times it.
+        `mean_tour_length` is the local moves per tour, whose theoretical value is `Z / c`
+        (complete tours: counted moves over counted tours; open tours: Rao-Blackwellised,
+        `(lane_steps - K) / K`); `z_estimate = c` times it.
         `completed_tour_mean` and `completed_tour_cv` describe finished tours only (biased
         towards short tours in short runs).
         """
         xp = xp_of(*jax.tree.leaves(tally))
         k = tally.kill_probability
-        mean_length = ratio(tally.lane_steps - k, k)
+        if self.complete_tours:  # counted tours only: their local moves per tour
+            mean_length = ratio(tally.local_moves, tally.kills)
+        else:
+            mean_length = ratio(tally.lane_steps - k, k)
         completed_mean = ratio(tally.completed_moves, tally.kills)
         second = ratio(tally.completed_moves_sq, tally.kills)
         return {
@@ -270,7 +348,7 @@ class AbstractPSSRestore(AbstractRenderer):
             "z_bootstrap_relative_error": params.z_bootstrap_error,
             "mean_tour_length": mean_length,
             "z_estimate": params.rate * mean_length,
-            "tours_started": params.lanes + tally.kills,
+            "tours_started": params.lanes + tally.restarts,
             "tours_completed": tally.kills,
             "tours_per_lane": ratio(k, params.lanes),
             "completed_tour_mean": completed_mean,

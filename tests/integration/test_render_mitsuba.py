@@ -34,7 +34,7 @@ def _errors(image, reference):
 def test_renderer_converges_to_the_native_image(scene_and_reference, method):
     scene, reference = scene_and_reference
     target = PrimarySampleSpace(scene, russian_roulette=method != "mala-restore")
-    renderer = make_renderer(method, tour_length=16.0)
+    renderer = make_renderer(method)  # the defaults: complete tours of L = 1, p_large = 0.3
     result = rr.render(target, renderer, key=jax.random.key(3), evaluations=1_500_000, lanes=2048, progress=False)
     total, block = _errors(result.image, reference)
     assert total < 0.08 and block < 0.08, (method, total, block)
