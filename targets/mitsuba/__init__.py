@@ -51,10 +51,16 @@ from ._scenes import (
     door_ajar as door_ajar,
 )
 from ._scenes import (
+    door_gap as door_gap,
+)
+from ._scenes import (
     glass_torus as glass_torus,
 )
 from ._scenes import (
     load_scene as load_scene,
+)
+from ._scenes import (
+    pool as pool,
 )
 from ._scenes import (
     scene_dict as scene_dict,

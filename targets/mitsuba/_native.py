@@ -72,35 +72,44 @@ def render_native_for(
     seconds: float,
     *,
     max_depth: int | None = None,
-    chunk_spp: int = 4,
+    pass_paths: int = 1 << 20,
     seed: int = 0,
     on_update: Callable[[np.ndarray, float], None] | None = None,
 ) -> NativeRender:
-    """Render progressively, `chunk_spp` samples per pixel at a time with fresh seeds, until
-    `seconds` of wall time are spent (at least one chunk); returns the average image.
+    """Render for `seconds` of wall time at full speed; returns the average image.
 
-    `on_update(image_so_far, elapsed_seconds)`, if given, is called after every chunk
-    (progressive output; its own time counts towards `seconds`). Ctrl-C stops the render
-    and returns the passes that finished, marked `interrupted`."""
+    Passes of about `pass_paths` paths (a whole number of samples per pixel, fresh seeds)
+    run until less than one pass of time is left; a last pass sized from the measured
+    rate then fills the rest, so the render ends close to `seconds` and never wastes the
+    tracer on small batches. Call it once with warm kernels (e.g. after `render_native`
+    with one pass) to keep compilation out of the time.
+
+    `on_update(image_so_far, elapsed_seconds)`, if given, is called after every pass
+    (its own time counts towards `seconds`). Ctrl-C stops the render and returns the
+    passes that finished, marked `interrupted`."""
     mi = load_mitsuba()
-    chunk_spp = _positive_int(chunk_spp, "chunk_spp")
+    pass_paths = _positive_int(pass_paths, "pass_paths")
     if not seconds > 0:
         raise ValueError(f"seconds must be positive, got {seconds!r}")
     integrator = _integrator(mi, scene, max_depth)
-    total, spp, chunk = None, 0, 0
+    width, height = (int(v) for v in scene.sensors()[0].film().crop_size())
+    pass_spp = max(1, pass_paths // (width * height))
+    total, spp, passes = None, 0, 0
     start = time.perf_counter()
     try:
-        while True:
-            image = mi.render(scene, integrator=integrator, spp=chunk_spp, seed=_pass_seed(seed, chunk))
-            image = np.array(image, dtype=np.float64)[..., :3] * chunk_spp
+        n = pass_spp
+        while n >= 1:
+            image = mi.render(scene, integrator=integrator, spp=n, seed=_pass_seed(seed, passes))
+            image = np.array(image, dtype=np.float64)[..., :3] * n
             # committed together, so that Ctrl-C never leaves a pass half counted
-            total, spp, chunk = (image if total is None else total + image), spp + chunk_spp, chunk + 1
-            elapsed = time.perf_counter() - start
+            total, spp, passes = (image if total is None else total + image), spp + n, passes + 1
             if on_update is not None:
-                on_update((total / spp).astype(np.float32), elapsed)
-                elapsed = time.perf_counter() - start
-            if elapsed >= seconds:
-                return NativeRender((total / spp).astype(np.float32), spp, elapsed)
+                on_update((total / spp).astype(np.float32), time.perf_counter() - start)
+            elapsed = time.perf_counter() - start
+            left, per_spp = seconds - elapsed, elapsed / spp
+            n = pass_spp if left >= 2 * pass_spp * per_spp else int(left / per_spp)
+        assert total is not None  # the first pass always runs
+        return NativeRender((total / spp).astype(np.float32), spp, time.perf_counter() - start)
     except KeyboardInterrupt:
         if total is None:
             raise  # nothing finished to keep

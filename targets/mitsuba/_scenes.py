@@ -121,18 +121,27 @@ def cornell_box(
 
 
 def door_ajar(
-    *, resolution: Sequence[int] = DEFAULT_RESOLUTION, max_depth: int = DEFAULT_MAX_DEPTH
+    *,
+    resolution: Sequence[int] = DEFAULT_RESOLUTION,
+    max_depth: int = DEFAULT_MAX_DEPTH,
+    door_angle: float = 15.0,
+    glossy: bool = False,
 ) -> dict[str, Any]:
     """A dark room lit only through a door left ajar into a lit neighbouring room.
 
     Geometry (y up, all rectangles, two-sided diffuse): the dark room spans
     `x in [-2, 2], y in [0, 2.5], z in [0, 4]`; the lit room `z in [-3, 0]`. They share the
     wall `z = 0`, which has a doorway `x in [0.4, 1.2], y in [0, 2]`; the door, hinged at
-    `x = 1.2`, is opened 15 degrees into the lit room. An area light on the lit room's
-    ceiling, out of sight of the camera, faces down. Camera: inside the dark room at
-    `(-1.6, 1.4, 3.8)` looking at the door, `(0.6, 0.9, 0)`; almost every pixel receives
-    light only after several bounces through the gap.
+    `x = 1.2`, is opened `door_angle` degrees (default 15) into the lit room. An area light
+    on the lit room's ceiling, out of sight of the camera, faces down. Camera: inside the
+    dark room at `(-1.6, 1.4, 3.8)` looking at the door, `(0.6, 0.9, 0)`; almost every pixel
+    receives light only after several bounces through the gap. With `glossy`, the dark
+    room's floor is a rough plastic (GGX, alpha 0.08) and the door rough aluminium (alpha
+    0.15), so that light through the gap also travels along narrow glossy lobes.
     """
+    door_angle = float(door_angle)
+    if not 0 < door_angle <= 90:
+        raise ValueError(f"door_angle must lie in (0, 90] degrees, got {door_angle!r}")
     mi = _mi()
     white, grey, door = _diffuse([0.8, 0.8, 0.8]), _diffuse([0.6, 0.6, 0.55]), _diffuse([0.55, 0.35, 0.2])
     x0, x1, h, z_dark, z_lit = -2.0, 2.0, 2.5, 4.0, -3.0
@@ -149,10 +158,12 @@ def door_ajar(
             f"{prefix}-end": _quad(mi, [cx, h / 2, z_b], [w, 0, 0], [0, h / 2, 0], white),
         }
 
-    angle = np.deg2rad(15.0)
+    angle = np.deg2rad(door_angle)
     half_door = 0.5 * (door_hi - door_lo)
     # The door swings about its hinge (x = door_hi, z = 0) into the lit room (z < 0).
     door_dir = np.array([-np.cos(angle), 0.0, -np.sin(angle)])
+    if glossy:
+        door = {"type": "twosided", "bsdf": {"type": "roughconductor", "material": "Al", "alpha": 0.15}}
     scene: dict[str, Any] = {
         "type": "scene",
         "integrator": _path_integrator(max_depth),
@@ -189,7 +200,82 @@ def door_ajar(
             _area_light([600.0, 540.0, 450.0]),
         ),
     }
+    if glossy:
+        scene["dark-floor"]["bsdf"] = {
+            "type": "roughplastic", "distribution": "ggx", "alpha": 0.08,
+            "diffuse_reflectance": {"type": "rgb", "value": [0.35, 0.3, 0.25]},
+        }
     return scene
+
+
+def door_gap(
+    *, resolution: Sequence[int] = DEFAULT_RESOLUTION, max_depth: int = DEFAULT_MAX_DEPTH
+) -> dict[str, Any]:
+    """`door_ajar` with the door opened only 3 degrees and glossy floor and door: nearly all
+    light reaches the visible room through a gap of about 4 cm, and much of it along glossy
+    lobes (a hard scene for path tracing)."""
+    return door_ajar(resolution=resolution, max_depth=max_depth, door_angle=3.0, glossy=True)
+
+
+def pool(
+    *, resolution: Sequence[int] = DEFAULT_RESOLUTION, max_depth: int = DEFAULT_MAX_DEPTH, grid: int = 64
+) -> dict[str, Any]:
+    """A pool of water under a small light: specular-diffuse-specular caustics.
+
+    Geometry (y up): a pool `x, z in [-1, 1]`, 0.6 deep (floor `y = 0`, light tiles; walls),
+    surrounded by a deck at `y = 0.6`; the water surface is a wavy height field
+    `y = 0.5 + 0.02 (sin + sin)` (a `grid x grid` triangle mesh with smooth normals, a
+    dielectric of IOR 1.33). A small square light (side 0.2) hangs at `(0.5, 2.5, -0.3)`,
+    facing down. Camera: at `(0, 2.2, 1.9)` looking at `(0, 0, -0.15)`. The pool floor is
+    lit only through the water, and seen only through it: light-floor-eye paths are
+    specular-diffuse-specular, which a path tracer finds only by refracting into the small light.
+    """
+    mi = _mi()
+    import drjit as dr
+
+    n = int(grid)
+    if n < 2:
+        raise ValueError(f"grid must be >= 2, got {grid!r}")
+    x, z = np.meshgrid(np.linspace(-1, 1, n + 1), np.linspace(-1, 1, n + 1), indexing="ij")
+    y = 0.5 + 0.02 * (np.sin(7.0 * x + 2.0 * z) + np.sin(5.0 * z - 3.0 * x + 1.0))
+    verts = np.stack([x, y, z], -1).reshape(-1, 3)
+    i, j = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+    a, b = i * (n + 1) + j, (i + 1) * (n + 1) + j
+    faces = np.concatenate([np.stack([a, a + 1, b], -1).reshape(-1, 3), np.stack([b, a + 1, b + 1], -1).reshape(-1, 3)])
+    props = mi.Properties()
+    props["bsdf"] = mi.load_dict({"type": "dielectric", "int_ior": 1.33, "ext_ior": 1.0})
+    water = mi.Mesh("water", len(verts), len(faces), props=props, has_vertex_normals=True)
+    params = mi.traverse(water)
+    params["vertex_positions"] = dr.ravel(mi.Point3f(*(verts.T.astype(np.float32).copy())))
+    params["faces"] = dr.ravel(mi.Vector3u(*(faces.T.astype(np.uint32).copy())))
+    params.update()
+    water.recompute_vertex_normals()
+
+    tiles, wall, deck = _diffuse([0.75, 0.8, 0.8]), _diffuse([0.5, 0.65, 0.75]), _diffuse([0.7, 0.65, 0.55])
+    d = 0.6
+    return {
+        "type": "scene",
+        "integrator": _path_integrator(max_depth),
+        "sensor": _camera(mi, resolution, [0.0, 2.2, 1.9], [0.0, 0.0, -0.15], fov=55.0),
+        "pool-floor": _quad(mi, [0, 0, 0], [1, 0, 0], [0, 0, -1], tiles),
+        "pool-wall-back": _quad(mi, [0, d / 2, -1], [1, 0, 0], [0, d / 2, 0], wall),
+        "pool-wall-front": _quad(mi, [0, d / 2, 1], [0, d / 2, 0], [1, 0, 0], wall),
+        "pool-wall-left": _quad(mi, [-1, d / 2, 0], [0, 0, 1], [0, d / 2, 0], wall),
+        "pool-wall-right": _quad(mi, [1, d / 2, 0], [0, d / 2, 0], [0, 0, 1], wall),
+        "deck-back": _quad(mi, [0, d, -2.5], [4, 0, 0], [0, 0, -1.5], deck),
+        "deck-front": _quad(mi, [0, d, 2.5], [4, 0, 0], [0, 0, -1.5], deck),
+        "deck-left": _quad(mi, [-2.5, d, 0], [1.5, 0, 0], [0, 0, -1], deck),
+        "deck-right": _quad(mi, [2.5, d, 0], [1.5, 0, 0], [0, 0, -1], deck),
+        "water": water,
+        "light": _quad(
+            mi,
+            [0.5, 2.5, -0.3],
+            [0.1, 0, 0],
+            [0, 0, 0.1],
+            _diffuse([0.0, 0.0, 0.0], two_sided=False),
+            _area_light([800.0, 760.0, 700.0]),
+        ),
+    }
 
 
 def caustic(
@@ -321,6 +407,8 @@ SCENES: dict[str, Callable[..., dict[str, Any]]] = {
     "door_ajar": door_ajar,
     "caustic": caustic,
     "glass_torus": glass_torus,
+    "door_gap": door_gap,
+    "pool": pool,
 }
 """The built-in scenes by name, each a function returning a Mitsuba scene dictionary."""
 

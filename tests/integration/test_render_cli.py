@@ -154,6 +154,6 @@ def test_native_render_keeps_the_finished_passes_on_ctrl_c():
             raise KeyboardInterrupt
 
     scene = load_scene("cornell_box", (8, 8), 2)
-    native = render_native_for(scene, 60.0, chunk_spp=2, on_update=interrupt_on_the_second_pass)
+    native = render_native_for(scene, 60.0, pass_paths=128, on_update=interrupt_on_the_second_pass)
     assert native.interrupted and native.spp == 4 and native.seconds < 60.0
     np.testing.assert_array_equal(native.image, calls[1])
