@@ -8,6 +8,8 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from .render._methods import LANES, P_LARGE, TOUR_LENGTH
+
 app = typer.Typer(help="Restore samplers in JAX: jump Restore, baselines and checks.", no_args_is_help=True, add_completion=False)
 console = Console()
 
@@ -204,8 +206,9 @@ def render(
     max_depth: int | None = typer.Option(
         None, min=1, help=f"Maximum path depth, as in Mitsuba's path integrator (default: an XML scene's own; {_BUILTIN_MAX_DEPTH} for built-in scenes)."
     ),
-    lanes: int = typer.Option(16384, min=1, help="Parallel lanes of the PSS renderers."),
-    tour_length: float = typer.Option(32.0, min=1e-6, help="Restore's mean tour length; PSSMLT's large-step probability is 1/(1 + it)."),
+    lanes: int = typer.Option(LANES, min=1, help="Parallel lanes of the PSS renderers."),
+    tour_length: float = typer.Option(TOUR_LENGTH, min=1e-6, help="Restore's mean tour length (local moves per tour)."),
+    p_large: float = typer.Option(P_LARGE, min=1e-6, max=1.0, help="PSSMLT's large-step probability."),
     seed: int = typer.Option(0, help="Random seed."),
     progress: bool = typer.Option(True, help="Show a progress bar."),
     checkpoint: Path | None = typer.Option(
@@ -238,7 +241,8 @@ def render(
     except ImportError as error:  # pragma: no cover - targets ships with the package
         _fail(str(error))
     try:
-        image, summary = _render(scene, method, time_budget, evaluations, size, max_depth, lanes, tour_length, seed, progress, method in GRADIENT_METHODS, checkpoint)
+        settings = {"tour_length": tour_length, "p_large": p_large}
+        image, summary = _render(scene, method, time_budget, evaluations, size, max_depth, lanes, settings, seed, progress, method in GRADIENT_METHODS, checkpoint)
     except (FileNotFoundError, UnsupportedSceneError, LLVMNotFoundError, ImportError) as error:
         _fail(str(error))
     except ValueError as error:
@@ -251,8 +255,8 @@ def render(
     console.print(f"Image written to {out} (preview {preview})")
 
 
-def _render(scene, method, seconds, evaluations, resolution, max_depth, lanes, tour_length, seed, progress, needs_gradient, checkpoint=None):
-    """Run one render; returns the image and a one-line summary.
+def _render(scene, method, seconds, evaluations, resolution, max_depth, lanes, settings, seed, progress, needs_gradient, checkpoint=None):
+    """Run one render; returns the image and a one-line summary. `settings` go to `make_renderer`.
 
     `resolution` and `max_depth` are `None` where not given: a built-in scene then gets the
     command's defaults, a scene file keeps its own (a depth is needed: Mitsuba's default of
@@ -295,7 +299,7 @@ def _render(scene, method, seconds, evaluations, resolution, max_depth, lanes, t
     if needs_gradient:
         target.check_gradient_support()
     result = run_render(
-        target, make_renderer(method, tour_length=tour_length), key=jax.random.key(seed), seconds=seconds,
+        target, make_renderer(method, **settings), key=jax.random.key(seed), seconds=seconds,
         evaluations=evaluations, lanes=lanes, progress=progress, checkpoint=checkpoint,
     )
     stats = ", ".join(f"{k} {v:.4g}" for k, v in result.statistics.items() if np.isfinite(v))
@@ -317,8 +321,9 @@ def render_compare(
     realisations: int = typer.Option(3, min=1, help="Independent renders per method and scene."),
     resolution: str = typer.Option("64", help="Film size, e.g. 64 or 96x64."),
     max_depth: int = typer.Option(5, min=1, help="Maximum path depth."),
-    lanes: int = typer.Option(16384, min=1, help="Parallel lanes of the PSS renderers."),
-    tour_length: float = typer.Option(32.0, min=1e-6, help="Restore's mean tour length (PSSMLT and ERPT are matched to it)."),
+    lanes: int = typer.Option(LANES, min=1, help="Parallel lanes of the PSS renderers."),
+    tour_length: float = typer.Option(TOUR_LENGTH, min=1e-6, help="Restore's mean tour length (local moves per tour)."),
+    p_large: float = typer.Option(P_LARGE, min=1e-6, max=1.0, help="PSSMLT's large-step probability."),
     reference_spp: int = typer.Option(4096, min=1, help="Samples per pixel of the cached reference."),
     out: Path = typer.Option(Path("render-results"), help="Folder for results.md, results.csv and the figures."),
     progress: bool = typer.Option(True, help="Progress bars (without: one line per render)."),
@@ -330,7 +335,7 @@ def render_compare(
         result = compare_renderers(
             _names(scenes), _names(methods), seconds=time_budget, realisations=realisations,
             resolution=_resolution(resolution), max_depth=max_depth, lanes=lanes, tour_length=tour_length,
-            reference_spp=reference_spp, out_dir=out, progress=progress, log=console.print,
+            p_large=p_large, reference_spp=reference_spp, out_dir=out, progress=progress, log=console.print,
         )
     except (FileNotFoundError, ValueError, ImportError, RuntimeError) as error:
         _fail(str(error))

@@ -22,7 +22,7 @@ import numpy as np
 
 from .._io import matplotlib_for, save_figure, write_text
 from ._driver import render
-from ._methods import GRADIENT_METHODS, METHODS, make_renderer
+from ._methods import GRADIENT_METHODS, LANES, METHODS, P_LARGE, TOUR_LENGTH, make_renderer
 from ._metrics import l1, mape, mrse, mse, relative_mse, variance_across
 
 CSV_COLUMNS = ("scene", "method", "realisation", "seconds", "evaluations", "l1", "mse", "relative_mse", "mrse", "mape")
@@ -56,14 +56,26 @@ class RenderComparison:
     runs: list[MethodRun]
     throughput: dict[str, tuple[float, float]]  # scene -> (PSS paths/s, native paths/s)
     skipped: dict[tuple[str, str], str]
+    settings: dict[str, float] = dataclasses.field(default_factory=dict)  # lanes, tour_length, p_large
     files: dict[str, Path] = dataclasses.field(default_factory=dict)
 
     def mean_metric(self, scene: str, method: str, metric: str = "relative_mse") -> float:
         values = [r.metrics[metric] for r in self.runs if r.scene == scene and r.method == method]
         return float(np.mean(values)) if values else math.nan
 
+    def mean_seconds(self, scene: str, method: str) -> float:
+        values = [r.seconds for r in self.runs if r.scene == scene and r.method == method]
+        return float(np.mean(values)) if values else math.nan
+
+    def work_normalised(self, scene: str, method: str) -> float:
+        """Mean relative MSE times mean wall time: the inverse efficiency, which compares
+        renders that ran for slightly different times (Restore finishes its open tours
+        after the budget) as if at equal time, for errors falling as 1 / time."""
+        return self.mean_metric(scene, method) * self.mean_seconds(scene, method)
+
     def ratios(self) -> list[tuple[str, str, float, str]]:
-        """`(ratio, scene, value, goal)` rows: throughput, Restore / PSSMLT and Restore / path tracing."""
+        """`(ratio, scene, value, goal)` rows: throughput, Restore / PSSMLT and Restore / path tracing
+        (relative MSE x seconds, see `work_normalised`)."""
         rows = []
         for scene in self.scenes:
             if scene in self.throughput:
@@ -71,9 +83,9 @@ class RenderComparison:
                 rows.append(("PSS paths/s / native path samples/s", scene, pss / native, ">= 0.5"))
         for scene in self.scenes:
             for other, goal in (("pssmlt", "<= 0.8"), ("path", "< 1")):
-                value = self.mean_metric(scene, "restore") / self.mean_metric(scene, other)
+                value = self.work_normalised(scene, "restore") / self.work_normalised(scene, other)
                 if math.isfinite(value):
-                    rows.append((f"relative MSE, Metropolis Restore / {other}", scene, value, goal))
+                    rows.append((f"relative MSE x time, Metropolis Restore / {other}", scene, value, goal))
         return rows
 
 
@@ -85,10 +97,12 @@ def _metrics(image: np.ndarray, reference: np.ndarray) -> dict[str, float]:
 
 
 def _native_run(scene, reference, seconds: float, max_depth: int, seed: int):
-    """Mitsuba's `path` integrator, progressively, for `seconds`; returns image, spp, time and error curve."""
+    """Mitsuba's `path` integrator at full speed for `seconds` (passes of about 2^20 paths);
+    returns image, spp, time and error curve (one point per pass)."""
     from targets.mitsuba import render_native, render_native_for
 
-    render_native(scene, 1, seed=10**6 + seed, max_depth=max_depth)  # compile the kernels outside the budget
+    width, height = (int(v) for v in scene.sensors()[0].film().crop_size())
+    render_native(scene, max(1, (1 << 20) // (width * height)), seed=10**6 + seed, max_depth=max_depth)  # compile outside the budget
     curve: list[tuple[float, float]] = []
     native = render_native_for(
         scene, seconds, max_depth=max_depth, seed=seed,
@@ -105,8 +119,9 @@ def compare_renderers(
     realisations: int = 3,
     resolution: tuple[int, int] = (64, 64),
     max_depth: int = 5,
-    lanes: int = 16384,
-    tour_length: float = 32.0,
+    lanes: int = LANES,
+    tour_length: float = TOUR_LENGTH,
+    p_large: float = P_LARGE,
     reference_spp: int = 4096,
     out_dir: str | Path | None = None,
     progress: bool = True,
@@ -121,7 +136,8 @@ def compare_renderers(
         realisations: independent renders per method (for the variance across realisations).
         resolution, max_depth: the film and path length, for every method and the reference.
         lanes: parallel lanes of the PSS renderers.
-        tour_length: Restore's mean tour length; PSSMLT's large-step probability and ERPT's chain length match it.
+        tour_length: Restore's mean tour length (local moves per tour, complete tours).
+        p_large: PSSMLT's large-step probability.
         reference_spp: samples per pixel of the cached reference.
         out_dir: where to write `results.md`, `results.csv` and the figures (nothing written if `None`).
         progress: progress bars for each render.
@@ -167,7 +183,7 @@ def compare_renderers(
                 else:
                     stamps: list[tuple[float, float]] = []
                     result = render(
-                        pss_target, make_renderer(method, tour_length=tour_length), key=jax.random.key(1000 * r + 7),
+                        pss_target, make_renderer(method, tour_length=tour_length, p_large=p_large), key=jax.random.key(1000 * r + 7),
                         seconds=seconds, lanes=lanes, progress=progress,
                         on_update=lambda img, _s: stamps.append((time.perf_counter(), relative_mse(img, reference))),  # noqa: B023
                     )
@@ -179,7 +195,7 @@ def compare_renderers(
                 say(f"{scene_key} {method} #{r}: {elapsed:.1f} s, {evaluations:,} paths, relative MSE {run.metrics['relative_mse']:.4g}")
     comparison = RenderComparison(
         tuple(Path(s).stem for s in scenes), tuple(methods), float(seconds), realisations, tuple(resolution), max_depth,
-        references, runs, throughput, skipped,
+        references, runs, throughput, skipped, {"lanes": lanes, "tour_length": tour_length, "p_large": p_large},
     )
     if out_dir is not None:
         write_comparison(comparison, Path(out_dir))
@@ -200,7 +216,11 @@ def markdown(comparison: RenderComparison) -> str:
         "",
         f"{len(c.scenes)} scene(s) at {c.resolution[0]}x{c.resolution[1]}, max depth {c.max_depth}; every method "
         f"renders for {c.seconds:g} s (compilation excluded), {c.realisations} independent realisation(s). Errors "
-        "against a cached high-spp reference of Mitsuba's `path` integrator; relative MSE uses eps = 0.01.",
+        "against a cached high-spp reference of Mitsuba's `path` integrator; relative MSE uses eps = 0.01. "
+        "Metropolis Restore then finishes the tours still open (its seconds include that), so the ratios "
+        "compare relative MSE x seconds (inverse efficiency).",
+        "",
+        "Settings: " + ", ".join(f"{k} {v:g}" for k, v in c.settings.items()) + ".",
         "",
         "## Ratios",
         "",
@@ -213,19 +233,19 @@ def markdown(comparison: RenderComparison) -> str:
             "",
             f"## {scene}",
             "",
-            "| method | paths (mean) | relative MSE | MRSE | MAPE | L1 | MSE | variance across realisations |",
-            "|---|---|---|---|---|---|---|---|",
+            "| method | seconds (mean) | paths (mean) | relative MSE | MRSE | MAPE | L1 | MSE | variance across realisations |",
+            "|---|---|---|---|---|---|---|---|---|",
         ]
         for method in c.methods:
             runs = [r for r in c.runs if r.scene == scene and r.method == method]
             if not runs:
                 if (scene, method) in c.skipped:
-                    lines.append(f"| {method} | skipped: {c.skipped[(scene, method)]} | | | | | | |")
+                    lines.append(f"| {method} | skipped: {c.skipped[(scene, method)]} | | | | | | | |")
                 continue
             var = variance_across([r.image for r in runs]) if len(runs) > 1 else math.nan
             m = lambda k: float(np.mean([r.metrics[k] for r in runs]))  # noqa: B023, E731
             lines.append(
-                f"| {method} | {np.mean([r.evaluations for r in runs]):,.0f} | {_fmt(m('relative_mse'))} | {_fmt(m('mrse'))} | "
+                f"| {method} | {np.mean([r.seconds for r in runs]):.1f} | {np.mean([r.evaluations for r in runs]):,.0f} | {_fmt(m('relative_mse'))} | {_fmt(m('mrse'))} | "
                 f"{_fmt(m('mape'))} | {_fmt(m('l1'))} | {_fmt(m('mse'))} | {_fmt(var)} |"
             )
         if f"scene-{scene}" in c.files:

@@ -15,19 +15,30 @@ METHODS = ("path", "uniform", "pssmlt", "restore", "mala-restore", "erpt")
 GRADIENT_METHODS = ("mala-restore",)
 
 
+#: Faithful defaults: Restore's mean tour length and PSSMLT's large-step probability as the
+#: paper's authors and Kelemen et al. set them, chosen independently (`docs/rendering.md`
+#: has the sweep); ERPT's chain length is its own default.
+TOUR_LENGTH, P_LARGE, CHAIN_LENGTH = 1.0, 0.3, 32
+#: Default parallel lanes: on a CPU, fewer lanes run longer chains and tours for the same
+#: number of paths (`docs/rendering.md`).
+LANES = 2048
+
+
 def make_renderer(
     method: str,
     *,
-    tour_length: float = 32.0,
+    tour_length: float = TOUR_LENGTH,
+    p_large: float = P_LARGE,
+    chain_length: int = CHAIN_LENGTH,
     mutation: AbstractTorusMutation | None = None,
     step_size: float = 1e-4,
 ) -> AbstractRenderer:
-    """The PSS renderer called `method`, with parameters matched across methods.
+    """The PSS renderer called `method`.
 
     All share `mutation` (default `KelemenMutation()`) as small step and a uniform draw
-    as large step. A Restore tour makes `tour_length` local moves on average; PSSMLT takes
-    a large step with probability `1 / (tour_length + 1)`, the same share of fresh
-    uniform draws; ERPT chains are `tour_length` mutations long.
+    as large step. Each method keeps its own exploration setting: a Restore tour makes
+    `tour_length` local moves on average (complete tours), PSSMLT takes a large step with
+    probability `p_large`, ERPT chains are `chain_length` mutations long.
 
     Raises:
         ValueError: for `path` (Mitsuba's integrator is not a PSS renderer) or an unknown name.
@@ -36,13 +47,13 @@ def make_renderer(
     if method == "uniform":
         return UniformSampler()
     if method == "pssmlt":
-        return PSSMLT(mutation, p_large=1.0 / (tour_length + 1.0))
+        return PSSMLT(mutation, p_large=p_large)
     if method == "restore":
         return MetropolisRestore(mutation, tour_length=tour_length)
     if method == "mala-restore":
         return MALARestore(step_size=step_size, tour_length=tour_length)
     if method == "erpt":
-        return ERPT(mutation, chain_length=max(1, round(tour_length)))
+        return ERPT(mutation, chain_length=chain_length)
     if method == "path":
         raise ValueError("'path' is Mitsuba's native integrator, not a primary-sample-space renderer")
     raise ValueError(f"unknown method {method!r}; choose from {', '.join(METHODS)}")
