@@ -10,7 +10,7 @@ import jax
 import numpy as np
 
 from ._estimates import Estimate
-from ._io import matplotlib_for, save_figure
+from ._io import matplotlib_for, save_and_close
 from ._jump_restore import JumpRestore
 from ._mixture_mh import MixtureMH
 from ._sample import sample
@@ -100,8 +100,5 @@ def plot_demo(outcome: DemoOutcome, path: Path) -> Path:
     ax.legend()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    try:
-        save_figure(fig, path, dpi=120)
-    finally:
-        plt.close(fig)
+    save_and_close(fig, path, dpi=120)
     return path

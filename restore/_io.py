@@ -51,6 +51,17 @@ def save_figure(fig, path: str | os.PathLike, **kwargs) -> Path:
     return atomic_write(path, lambda tmp: fig.savefig(tmp, format=fmt, **kwargs))
 
 
+def save_and_close(fig, path: str | os.PathLike, **kwargs) -> Path:
+    """`save_figure`, then close `fig` (also when saving fails), so that a program making
+    many figures does not keep them all open."""
+    import matplotlib.pyplot as plt
+
+    try:
+        return save_figure(fig, path, **kwargs)
+    finally:
+        plt.close(fig)
+
+
 def atomic_write(path: str | os.PathLike, write: Callable[[Path], object]) -> Path:
     """Call `write(tmp_path)` on a temporary file beside `path`, flush it to disk, then rename it to `path`.
 

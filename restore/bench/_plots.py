@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._io import matplotlib_for, save_figure
+from .._io import matplotlib_for, save_and_close
 from ._metrics import pooled_rms
 
 _STYLE = {"restore": ("C0", "o"), "mh": ("C3", "s"), "chains": ("C5", "v"), "emcee": ("C2", "^"), "blackjax": ("C4", "D"), "exact": ("0.4", "x")}
@@ -69,10 +69,7 @@ def plot_curves(rows: list[dict], problem: str, path: Path) -> Path | None:
     axes[0].set_title(f"{problem}: error against run time")
     axes[1].set_title("hollow markers: equal wall time to jump Restore")
     axes[0].legend(fontsize=7, loc="best")
-    try:
-        save_figure(fig, path, dpi=90)
-    finally:
-        plt.close(fig)
+    save_and_close(fig, path, dpi=90)
     return path
 
 
@@ -93,8 +90,5 @@ def plot_ratios(ratios, path: Path) -> Path | None:
     ax.axvline(1.0, color="0.3", lw=0.8, ls=":")
     ax.set_yticks(y, [f"{r.name} [{r.problem}]" for r in ratios], fontsize=7)
     ax.set_xlabel("ratio (jump Restore / other); green: goal met, red: missed, black tick: goal")
-    try:
-        save_figure(fig, path, dpi=90)
-    finally:
-        plt.close(fig)
+    save_and_close(fig, path, dpi=90)
     return path

@@ -20,7 +20,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from .._io import matplotlib_for, save_figure, write_text
+from .._io import matplotlib_for, save_and_close, write_text
 from ._driver import render
 from ._methods import GRADIENT_METHODS, LANES, METHODS, P_LARGE, TOUR_LENGTH, make_renderer
 from ._metrics import l1, mape, mrse, mse, relative_mse, variance_across
@@ -300,10 +300,7 @@ def plot_scene(comparison: RenderComparison, scene: str, path: Path) -> Path | N
     ax.set(xscale="log", yscale="log", xlabel="wall time (s, compilation excluded)", ylabel="relative MSE", title=f"{scene}: error against time")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
-    try:
-        save_figure(fig, path, dpi=110)
-    finally:
-        plt.close(fig)
+    save_and_close(fig, path, dpi=110)
     return path
 
 
