@@ -231,8 +231,6 @@ def pool(
     specular-diffuse-specular, which a path tracer finds only by refracting into the small light.
     """
     mi = _mi()
-    import drjit as dr
-
     n = int(grid)
     if n < 2:
         raise ValueError(f"grid must be >= 2, got {grid!r}")
@@ -242,14 +240,7 @@ def pool(
     i, j = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
     a, b = i * (n + 1) + j, (i + 1) * (n + 1) + j
     faces = np.concatenate([np.stack([a, a + 1, b], -1).reshape(-1, 3), np.stack([b, a + 1, b + 1], -1).reshape(-1, 3)])
-    props = mi.Properties()
-    props["bsdf"] = mi.load_dict({"type": "dielectric", "int_ior": 1.33, "ext_ior": 1.0})
-    water = mi.Mesh("water", len(verts), len(faces), props=props, has_vertex_normals=True)
-    params = mi.traverse(water)
-    params["vertex_positions"] = dr.ravel(mi.Point3f(*(verts.T.astype(np.float32).copy())))
-    params["faces"] = dr.ravel(mi.Vector3u(*(faces.T.astype(np.uint32).copy())))
-    params.update()
-    water.recompute_vertex_normals()
+    water = triangle_mesh("water", verts, faces, {"type": "dielectric", "int_ior": 1.33, "ext_ior": 1.0})
 
     tiles, wall, deck = _diffuse([0.75, 0.8, 0.8]), _diffuse([0.5, 0.65, 0.75]), _diffuse([0.7, 0.65, 0.55])
     d = 0.6
@@ -367,9 +358,6 @@ def torus_mesh(
     The torus lies in the `xz` plane around `centre`, rotated by `tilt_deg` about `x`;
     `segments = (around the ring, around the tube)`.
     """
-    mi = _mi()
-    import drjit as dr
-
     n_ring, n_tube = (int(s) for s in segments)
     if n_ring < 3 or n_tube < 3:
         raise ValueError(f"segments must both be >= 3, got {segments!r}")
@@ -390,13 +378,20 @@ def torus_mesh(
     c_ = ((i + 1) % n_ring) * n_tube + (j + 1) % n_tube
     d = i * n_tube + (j + 1) % n_tube
     faces = np.concatenate([np.stack([a, d, b], -1).reshape(-1, 3), np.stack([b, d, c_], -1).reshape(-1, 3)])
+    return triangle_mesh("torus", verts, faces, bsdf)
+
+
+def triangle_mesh(name: str, verts: np.ndarray, faces: np.ndarray, bsdf: dict[str, Any]) -> Any:
+    """An `mi.Mesh` from vertices `(V, 3)` and triangles `(F, 3)`, with smooth vertex normals."""
+    mi = _mi()
+    import drjit as dr
 
     props = mi.Properties()
     props["bsdf"] = mi.load_dict(bsdf)
-    mesh = mi.Mesh("torus", len(verts), len(faces), props=props, has_vertex_normals=True)
+    mesh = mi.Mesh(name, len(verts), len(faces), props=props, has_vertex_normals=True)
     params = mi.traverse(mesh)
-    params["vertex_positions"] = dr.ravel(mi.Point3f(*(verts.T.astype(np.float32).copy())))
-    params["faces"] = dr.ravel(mi.Vector3u(*(faces.T.astype(np.uint32).copy())))
+    params["vertex_positions"] = dr.ravel(mi.Point3f(*(np.asarray(verts).T.astype(np.float32).copy())))
+    params["faces"] = dr.ravel(mi.Vector3u(*(np.asarray(faces).T.astype(np.uint32).copy())))
     params.update()
     mesh.recompute_vertex_normals()
     return mesh
