@@ -150,10 +150,9 @@ class AbstractRenderer(eqx.Module):
         a zero tally; only called when `finishes`."""
         raise NotImplementedError(f"{type(self).__name__} has no open work to compact")
 
-    def finish(self, target, key: PRNGKeyArray, state, max_steps=None, until=0):
-        """Complete the open work after the budget (e.g. Restore's open tours) until at most
-        `until` lanes have any left; returns the state and the steps taken (at most
-        `max_steps` if given). Nothing to do by default."""
+    def finish(self, target, key: PRNGKeyArray, state, max_steps=None):
+        """Complete the open work after the budget (e.g. Restore's open tours); returns the
+        state and the steps taken (at most `max_steps` if given). Nothing to do by default."""
         return state, jnp.zeros((), jnp.int32)
 
     def run(self, target, key: PRNGKeyArray, state, num_steps: Int[Array, ""] | int):

@@ -299,10 +299,9 @@ class AbstractPSSRestore(AbstractRenderer):
             tally=_zero_tally(state.tally.film.shape[0]),
         )
 
-    def finish(self, target, key: PRNGKeyArray, state: RestoreRenderState, max_steps=None, until=0):
-        """With complete tours: start no new tour and step until at most `until` open tours
-        remain (0: all have ended), or `max_steps` steps if given; returns the state and the
-        steps taken."""
+    def finish(self, target, key: PRNGKeyArray, state: RestoreRenderState, max_steps=None):
+        """With complete tours: start no new tour and step until every open tour has ended
+        (at most `max_steps` steps if given); returns the state and the steps taken."""
         if not self.complete_tours:
             return state, jnp.zeros((), jnp.int32)
         limit = jnp.iinfo(jnp.int32).max if max_steps is None else max_steps
@@ -312,7 +311,7 @@ class AbstractPSSRestore(AbstractRenderer):
             return i + 1, self.step(target, jax.random.fold_in(key, i), s)
 
         steps, state = jax.lax.while_loop(
-            lambda c: (c[0] < limit) & (jnp.sum(c[1].in_tour) > until), body,
+            lambda c: (c[0] < limit) & jnp.any(c[1].in_tour), body,
             (jnp.zeros((), jnp.int32), self.stop_starting(state)),
         )
         return state, steps
