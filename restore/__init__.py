@@ -41,6 +41,8 @@ from ._sample import sample as sample
 from ._sampler import AbstractSampler as AbstractSampler
 from ._sampler import RunFacts as RunFacts
 from ._sampler import StepInfo as StepInfo
+from ._speculation import SpeculativeSteps as SpeculativeSteps
+from ._speculation import speculative_steps as speculative_steps
 from ._trace import RunTrace as RunTrace
 
 __version__ = "0.1.0"

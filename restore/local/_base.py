@@ -30,10 +30,14 @@ class AbstractLocalKernel(eqx.Module):
     evaluate the density elsewhere, as HMC does along its trajectory); the caller
     evaluates the candidate once; `accept` decides from that evaluation.
 
-    Subclasses set the class variable `uses_gradient` and implement both methods.
+    Subclasses set the class variables `uses_gradient` and `proposes_from_position`
+    (the candidate depends on the position and the key alone, not on the log density or
+    its gradient: then candidates can be drawn ahead of their evaluation, along a path of
+    not yet evaluated points, as `restore.speculative_steps` does) and implement both methods.
     """
 
     uses_gradient: ClassVar[bool] = False
+    proposes_from_position: ClassVar[bool] = False
 
     @abc.abstractmethod
     def propose(

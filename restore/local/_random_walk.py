@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import ClassVar
 
 import jax
 from jaxtyping import Array, Float, PRNGKeyArray
@@ -20,6 +21,7 @@ class RandomWalk(AbstractLocalKernel):
     """
 
     scale: Float[Array, "*d"]
+    proposes_from_position: ClassVar[bool] = True
 
     def __init__(self, scale: float | Array = 1.0):
         self.scale = as_scale(scale, "scale")

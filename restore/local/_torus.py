@@ -91,6 +91,7 @@ class TorusMetropolis(AbstractLocalKernel):
     """
 
     mutation: AbstractTorusMutation
+    proposes_from_position: ClassVar[bool] = True
 
     def __init__(self, mutation: AbstractTorusMutation | None = None):
         mutation = KelemenMutation() if mutation is None else mutation

@@ -121,9 +121,11 @@ def render(
 
     Finishing: a renderer with open work at the end of the budget (`renderer.finishes`:
     Restore with complete tours) then starts nothing new and steps until that work is
-    done; once few lanes are open they move into a small batch (`max(64, lanes / 64)`
-    lanes, compiled ahead) so that a few long tours do not cost a full batch per step.
-    Finishing comes on top of the budget: its steps and time are in `finishing_steps`,
+    done. A finishing step evaluates `finishing_slots(lanes)` points (a quarter of the
+    lanes, at least 64), shared among the open lanes, so a few long tours do not cost a
+    full batch per step; Restore with a Metropolis small step runs its open tours by
+    speculative steps there (`restore.speculative_steps`: several events of a tour per
+    evaluation batch). The finishing program is compiled ahead too. Finishing comes on top of the budget: its steps and time are in `finishing_steps`,
     `evaluations` and `seconds`.
 
     Arguments:
@@ -214,11 +216,11 @@ def render(
     warm_key = jax.random.fold_in(key_init, 1)
     finishes = renderer.finishes and not finished
     warm_state = (init_fn(warm_key) if state is None else state) if not done or finishes else None
-    if not done or finishes:  # finishing steps all lanes with the same chunk until few are open
+    if not done:
         chunk_fn = jax.jit(lambda k, s, n: renderer.run(target, k, s, n)).lower(key_run, state_shape, n_spec).compile()
         jax.block_until_ready(chunk_fn(warm_key, warm_state, jnp.asarray(1, jnp.int32)))
     if finishes:
-        small_batch = _small_batch(renderer, target, lanes, state_shape, warm_key, warm_state)
+        finisher = _finisher(renderer, target, lanes, state_shape, warm_key, warm_state)
     compile_seconds = time.perf_counter() - t0
 
     start = time.perf_counter()
@@ -271,7 +273,7 @@ def render(
         # `state` stays the one at the end of the budget: the checkpoint keeps it, with the
         # totals, as the start of finishing (or, once done, with `finished` set)
         (totals, chunks, taken, taken_evaluations, seconds_taken), interrupted = _finish(
-            renderer, chunk_fn, small_batch, state, totals, key_run, chunks, chunk, progress, lanes, step_cost
+            renderer, finisher, state, totals, key_run, chunks, chunk, progress, lanes, step_cost
         )
         finishing, finishing_evaluations = finishing + taken, finishing_evaluations + taken_evaluations
         wall += seconds_taken
@@ -297,32 +299,32 @@ def render(
     )
 
 
-#: Finishing moves the last open work into a batch of `max(_SMALL_BATCH, lanes // 64)` lanes.
-_SMALL_BATCH = 64
-#: Steps per call while finishing on all lanes (the open count is checked between calls).
-_FINISHING_CHUNK = 8
+#: Finishing evaluates `max(_FINISHING_SLOTS, lanes // _FINISHING_SHARE)` points per step (at most `lanes`).
+_FINISHING_SLOTS = 64
+_FINISHING_SHARE = 4
 
 
-def _small_batch(renderer, target, lanes, state_shape, warm_key, warm_state):
-    """`(size, compact, finish)` compiled for the small batch that the last open work moves
-    into, or `None` for runs of fewer than 8 times as many lanes (512 at least). Both are
-    called once here, outside the budget (Dr.Jit records its kernels for each batch size)."""
-    size = max(_SMALL_BATCH, lanes // 64)
-    if lanes < 8 * size:  # a batch this narrow costs little more per step than the small one
-        return None
-    compact = jax.jit(lambda s: renderer.compact(s, size)).lower(state_shape).compile()
-    shape = jax.eval_shape(lambda s: renderer.compact(s, size), state_shape)
+def finishing_slots(lanes: int) -> int:
+    """Points evaluated per finishing step for a render of `lanes` lanes."""
+    return min(lanes, max(_FINISHING_SLOTS, lanes // _FINISHING_SHARE))
+
+
+def _finisher(renderer, target, lanes, state_shape, warm_key, warm_state):
+    """`(slots, finish)`: the renderer's `finish` compiled for the run's state with
+    `finishing_slots(lanes)` evaluations per step, and called once here, outside the budget
+    (Dr.Jit records its kernels for that batch size)."""
+    slots = finishing_slots(lanes)
     key_spec = jax.eval_shape(lambda: warm_key)
     n_spec = jax.ShapeDtypeStruct((), jnp.int32)
-    finish = jax.jit(lambda k, s, n: renderer.finish(target, k, s, n)).lower(key_spec, shape, n_spec).compile()
-    jax.block_until_ready(finish(warm_key, compact(warm_state), jnp.asarray(1, jnp.int32)))
-    return size, compact, finish
+    finish = jax.jit(lambda k, s, n: renderer.finish(target, k, s, n, slots)).lower(key_spec, state_shape, n_spec).compile()
+    jax.block_until_ready(finish(warm_key, warm_state, jnp.asarray(1, jnp.int32)))
+    return slots, finish
 
 
-def _finish(renderer, chunk_fn, small_batch, state, totals, key_run, chunks, chunk, progress, lanes, step_cost):
-    """Complete the open work: no new work starts; all lanes step (the run's own compiled
-    chunk, `_FINISHING_CHUNK` steps a call) until the open lanes fit the small batch, which
-    then steps alone until nothing is open. The tallies are drained after every call.
+def _finish(renderer, finisher, state, totals, key_run, chunks, chunk, progress, lanes, step_cost):
+    """Complete the open work: no new work starts; each step evaluates the finisher's `slots`
+    points, shared among the open lanes (Restore: speculative steps along each open tour),
+    `chunk` steps a call, until nothing is open. The tallies are drained after every call.
     Returns `((totals, chunks, steps, evaluations, seconds), interrupted)`; Ctrl-C keeps every
     call that finished."""
     start, taken, evaluations = time.perf_counter(), 0, 0
@@ -330,25 +332,13 @@ def _finish(renderer, chunk_fn, small_batch, state, totals, key_run, chunks, chu
     open_work = renderer.open_tours(state)
     if open_work and progress:
         console_note(f"finishing the {open_work} open tours (no new tours start)")
-    size = small_batch[0] if small_batch is not None else 0
-
-    def drain(advanced, n, batch):
-        nonlocal totals, chunks, taken, evaluations
-        drained = host_tally(advanced.tally, totals)
-        totals, chunks = drained, chunks + 1
-        taken, evaluations = taken + n, evaluations + n * batch * step_cost // lanes
-        return zero_tally(advanced)
-
+    slots, finish = finisher
     try:
-        while renderer.open_tours(state) > size:
-            n = _FINISHING_CHUNK
-            state = drain(chunk_fn(jax.random.fold_in(key_run, chunks), state, jnp.asarray(n, jnp.int32)), n, lanes)
-        if small_batch is not None and renderer.open_tours(state) > 0:
-            _, compact, finish = small_batch
-            state = compact(state)
-            while renderer.open_tours(state) > 0:
-                advanced, n = finish(jax.random.fold_in(key_run, chunks), state, jnp.asarray(chunk, jnp.int32))
-                state = drain(advanced, int(n), size)
+        while renderer.open_tours(state) > 0:
+            advanced, n = finish(jax.random.fold_in(key_run, chunks), state, jnp.asarray(chunk, jnp.int32))
+            drained = host_tally(advanced.tally, totals)
+            state, totals, chunks = zero_tally(advanced), drained, chunks + 1
+            taken, evaluations = taken + int(n), evaluations + int(n) * slots * step_cost // lanes
     except KeyboardInterrupt:
         return (totals, chunks, taken, evaluations, time.perf_counter() - start), True
     return (totals, chunks, taken, evaluations, time.perf_counter() - start), False

@@ -145,14 +145,10 @@ class AbstractRenderer(eqx.Module):
         """The state with no new work starting (before `finish`); unchanged by default."""
         return state
 
-    def compact(self, state, size: int):
-        """A state of `size` lanes holding all the open work (at most `size` lanes of it), with
-        a zero tally; only called when `finishes`."""
-        raise NotImplementedError(f"{type(self).__name__} has no open work to compact")
-
-    def finish(self, target, key: PRNGKeyArray, state, max_steps=None):
-        """Complete the open work after the budget (e.g. Restore's open tours); returns the
-        state and the steps taken (at most `max_steps` if given). Nothing to do by default."""
+    def finish(self, target, key: PRNGKeyArray, state, max_steps=None, slots=None):
+        """Complete the open work after the budget (e.g. Restore's open tours), each step
+        evaluating `slots` points (default: one per lane); returns the state and the steps
+        taken (at most `max_steps` if given). Nothing to do by default."""
         return state, jnp.zeros((), jnp.int32)
 
     def run(self, target, key: PRNGKeyArray, state, num_steps: Int[Array, ""] | int):

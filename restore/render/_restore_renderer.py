@@ -70,6 +70,7 @@ from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 from .._jump_restore import JumpRestore
 from .._rate import kill_log_probability
 from .._restore import RestoreState
+from .._speculation import speculative_steps
 from ..local import AbstractLocalKernel
 from ..regeneration import AbstractRegeneration, UniformTorus
 from ._film import empty_film, splat
@@ -132,11 +133,12 @@ class RestoreTally(NamedTuple):
 
 class RestoreRenderState(NamedTuple):
     """State of a Restore render: the core sampler's lane states, each lane's local moves in its
-    current tour, which lanes are in a counted tour (`in_tour`), whether new tours still start
+    current tour (and how many were accepted: the acceptance guess of speculative finishing), which lanes are in a counted tour (`in_tour`), whether new tours still start
     (`starting`; false once a complete-tours render finishes its open tours), constants and sums."""
 
     lanes: RestoreState
     tour_moves: Int[Array, " N"]
+    tour_accepted: Int[Array, " N"]
     in_tour: Bool[Array, " N"]
     starting: Bool[Array, ""]
     params: RestoreParams
@@ -146,6 +148,24 @@ class RestoreRenderState(NamedTuple):
 def _zero_tally(num_pixels: int) -> RestoreTally:
     i0, f0 = jnp.zeros((), jnp.int32), jnp.zeros((), jnp.float32)
     return RestoreTally(empty_film(num_pixels), f0, i0, i0, i0, i0, i0, f0, i0)
+
+
+def _add_events(tally, target, info, counted, log_kill_rate, moves, starting, events) -> RestoreTally:
+    """The tally plus a batch of events (`info`, one per lane or slot; `counted` ones add):
+    `log_kill_rate` and `moves` of the state held before each event, `events` simulated."""
+    kill = jnp.exp(kill_log_probability(log_kill_rate, jnp.zeros((), jnp.float32)))  # local rate 1
+    killed = info.regenerated & counted
+    return RestoreTally(
+        film=splat(tally.film, target.pixel_index(info.position), jnp.where(counted, info.expected_holding_time, 0.0), info.aux),
+        kill_probability=tally.kill_probability + jnp.sum(jnp.where(counted, kill, 0.0)),
+        kills=tally.kills + jnp.sum(killed, dtype=jnp.int32),
+        restarts=tally.restarts + jnp.sum(killed & starting, dtype=jnp.int32),
+        local_moves=tally.local_moves + jnp.sum(counted & ~info.regenerated, dtype=jnp.int32),
+        accepted=tally.accepted + jnp.sum(counted & info.accepted, dtype=jnp.int32),
+        completed_moves=tally.completed_moves + jnp.sum(jnp.where(killed, moves, 0), dtype=jnp.int32),
+        completed_moves_sq=tally.completed_moves_sq + jnp.sum(jnp.where(killed, moves.astype(jnp.float32) ** 2, 0.0)),
+        lane_steps=tally.lane_steps + events,
+    )
 
 
 class AbstractPSSRestore(AbstractRenderer):
@@ -246,7 +266,9 @@ class AbstractPSSRestore(AbstractRenderer):
             index = resample(k_pick, lum + params.rate, lanes)
             states = jax.vmap(sampler.init)(keys, boot.position[index])
         zeros, ones = jnp.zeros(lanes, jnp.int32), jnp.ones(lanes, bool)
-        return RestoreRenderState(states, zeros, ones, jnp.asarray(True), params, _zero_tally(target.num_pixels))
+        return RestoreRenderState(
+            states, zeros, zeros, ones, jnp.asarray(True), params, _zero_tally(target.num_pixels)
+        )
 
     def check(self, params: RestoreParams) -> None:
         if self.rate is None and not float(params.z_bootstrap) > 0:
@@ -258,27 +280,70 @@ class AbstractPSSRestore(AbstractRenderer):
 
     def step(self, target, key: PRNGKeyArray, state: RestoreRenderState) -> RestoreRenderState:
         sampler = self.sampler(target, state.params.log_rate)
-        n, tally, moves, counted = state.tour_moves.shape[0], state.tally, state.tour_moves, state.in_tour
+        n, moves, counted = state.tour_moves.shape[0], state.tour_moves, state.in_tour
         lanes, info = jax.vmap(sampler.step)(jax.random.split(key, n), state.lanes)
-        kill = jnp.exp(kill_log_probability(state.lanes.log_kill_rate, jnp.zeros((), jnp.float32)))  # local rate 1
-        killed = info.regenerated & counted
-        tally = RestoreTally(
-            film=splat(
-                tally.film, target.pixel_index(info.position), jnp.where(counted, info.expected_holding_time, 0.0), info.aux
-            ),
-            kill_probability=tally.kill_probability + jnp.sum(jnp.where(counted, kill, 0.0)),
-            kills=tally.kills + jnp.sum(killed, dtype=jnp.int32),
-            restarts=tally.restarts + jnp.sum(killed & state.starting, dtype=jnp.int32),
-            local_moves=tally.local_moves + jnp.sum(counted & ~info.regenerated, dtype=jnp.int32),
-            accepted=tally.accepted + jnp.sum(counted & info.accepted, dtype=jnp.int32),
-            completed_moves=tally.completed_moves + jnp.sum(jnp.where(killed, moves, 0), dtype=jnp.int32),
-            completed_moves_sq=tally.completed_moves_sq
-            + jnp.sum(jnp.where(killed, moves.astype(jnp.float32) ** 2, 0.0)),
-            lane_steps=tally.lane_steps + jnp.int32(n),
+        tally = _add_events(
+            state.tally, target, info, counted, state.lanes.log_kill_rate, moves, state.starting, jnp.int32(n)
         )
+        killed = info.regenerated & counted
         in_tour = jnp.where(killed, state.starting, counted)  # a killed lane starts a counted tour only while starting
         tour_moves = jnp.where(info.regenerated, 0, moves + 1)
-        return state._replace(lanes=lanes, tour_moves=tour_moves, in_tour=in_tour, tally=tally)
+        tour_accepted = jnp.where(info.regenerated, 0, state.tour_accepted + info.accepted)
+        return state._replace(
+            lanes=lanes, tour_moves=tour_moves, tour_accepted=tour_accepted, in_tour=in_tour, tally=tally
+        )
+
+    @property
+    def speculates(self) -> bool:
+        """Open tours are finished by speculative steps (`restore.speculative_steps`): the local
+        kernel proposes from the position alone, so a lane runs many events per batched call."""
+        return self.complete_tours and self.kernel.proposes_from_position
+
+    def finishing_step(self, target, key: PRNGKeyArray, state: RestoreRenderState, slots: int) -> RestoreRenderState:
+        """Advance the open tours (no new tour starts) with one batched evaluation of `slots`
+        points: speculative steps (`speculates`: each open lane runs up to `slots // open`
+        events on its accept path), else one plain step of the first `slots` open lanes."""
+        if not self.speculates:
+            return self._step_open_lanes(target, key, state, slots)
+        sampler = self.sampler(target, state.params.log_rate)
+        guess = (state.tour_accepted + 1.0) / (state.tour_moves + 2.0)  # this tour's acceptance so far
+        run = speculative_steps(sampler, key, state.lanes, state.in_tour, slots, guess)
+        moves = state.tour_moves[run.lane] + run.level
+        tally = _add_events(
+            state.tally, target, run.info, run.valid, run.log_kill_rate, moves, jnp.zeros((), bool),
+            jnp.sum(run.valid, dtype=jnp.int32),
+        )
+        n = state.tour_moves.shape[0]
+        at_last = jnp.where(run.last, run.lane, n)
+        tour_moves = state.tour_moves.at[at_last].set(jnp.where(run.info.regenerated, 0, moves + 1), mode="drop")
+        tour_accepted = state.tour_accepted.at[jnp.where(run.valid, run.lane, n)].add(run.info.accepted.astype(jnp.int32), mode="drop")
+        tour_accepted = tour_accepted.at[jnp.where(run.last & run.info.regenerated, run.lane, n)].set(0, mode="drop")
+        return state._replace(
+            lanes=run.states, tour_moves=tour_moves, tour_accepted=tour_accepted, in_tour=run.active, tally=tally
+        )
+
+    def _step_open_lanes(self, target, key: PRNGKeyArray, state: RestoreRenderState, slots: int) -> RestoreRenderState:
+        """One step of the first `slots` open lanes (gathered, stepped, put back; closed lanes
+        that fill the slots are stepped too but keep their state and count nothing)."""
+        index = jnp.argsort(~state.in_tour, stable=True)[:slots]  # open lanes first
+        take = lambda x: x[index]  # noqa: E731
+        part = state._replace(
+            lanes=jax.tree.map(take, state.lanes), tour_moves=take(state.tour_moves),
+            tour_accepted=take(state.tour_accepted), in_tour=take(state.in_tour),
+        )
+        part = self.step(target, key, part)
+        was_open = state.in_tour[index]  # lanes taken to fill the slots keep their state
+
+        def put(whole, x):
+            keep = was_open.reshape(was_open.shape + (1,) * (x.ndim - 1))
+            return whole.at[index].set(jnp.where(keep, x, whole[index]))
+
+        return part._replace(
+            lanes=jax.tree.map(put, state.lanes, part.lanes),
+            tour_moves=put(state.tour_moves, part.tour_moves),
+            tour_accepted=put(state.tour_accepted, part.tour_accepted),
+            in_tour=put(state.in_tour, part.in_tour),
+        )
 
     def open_tours(self, state: RestoreRenderState) -> int:
         """Lanes whose counted tour is still running (host-side): `finish` runs them to their end."""
@@ -288,27 +353,20 @@ class AbstractPSSRestore(AbstractRenderer):
         """No new counted tours from now on: the open ones run to their end."""
         return state._replace(starting=jnp.zeros_like(state.starting))
 
-    def compact(self, state: RestoreRenderState, size: int) -> RestoreRenderState:
-        """The open lanes (at most `size` of them) moved into a state of `size` lanes, padded with
-        lanes that are not in a counted tour, and a zero tally: finishing a few long tours then
-        costs `size` lanes per step instead of all of them."""
-        index = jnp.argsort(~state.in_tour, stable=True)[:size]  # open lanes first
-        take = lambda x: x[index]  # noqa: E731
-        return state._replace(
-            lanes=jax.tree.map(take, state.lanes), tour_moves=take(state.tour_moves), in_tour=take(state.in_tour),
-            tally=_zero_tally(state.tally.film.shape[0]),
-        )
-
-    def finish(self, target, key: PRNGKeyArray, state: RestoreRenderState, max_steps=None):
-        """With complete tours: start no new tour and step until every open tour has ended
-        (at most `max_steps` steps if given); returns the state and the steps taken."""
+    def finish(self, target, key: PRNGKeyArray, state: RestoreRenderState, max_steps=None, slots=None):
+        """With complete tours: start no new tour and run every open tour to its end, each
+        step one batched evaluation of `slots` points (default: the lanes) shared among the
+        open tours (`finishing_step`); at most `max_steps` steps if given. Returns the state
+        and the steps taken."""
         if not self.complete_tours:
             return state, jnp.zeros((), jnp.int32)
+        lanes = state.tour_moves.shape[0]
+        slots = lanes if slots is None else min(int(slots), lanes)
         limit = jnp.iinfo(jnp.int32).max if max_steps is None else max_steps
 
         def body(carry):
             i, s = carry
-            return i + 1, self.step(target, jax.random.fold_in(key, i), s)
+            return i + 1, self.finishing_step(target, jax.random.fold_in(key, i), s, slots)
 
         steps, state = jax.lax.while_loop(
             lambda c: (c[0] < limit) & jnp.any(c[1].in_tour), body,

@@ -334,8 +334,9 @@ def test_driver_stops_on_the_evaluation_budget_and_reports_progress():
 
 
 def test_driver_finishes_every_open_tour_in_smaller_batches():
-    """Complete tours: after the budget no tour starts, the open ones run on (moved into
-    batches of 1/8 the lanes) and every tour started is counted once, finished."""
+    """Complete tours: after the budget no tour starts, the open ones run on (each finishing
+    step evaluating a quarter of the lanes' worth of points) and every tour started is
+    counted once, finished."""
     renderer = rr.MetropolisRestore(tour_length=8, n_bootstrap=1000)
     lanes, updates = 512, []
     budget = renderer.init_cost(lanes) + 40 * lanes
@@ -349,18 +350,26 @@ def test_driver_finishes_every_open_tour_in_smaller_batches():
     assert np.all(np.isfinite(result.image)) and result.image.sum() > 0
 
 
-def test_compact_keeps_every_open_lane():
-    renderer = rr.MetropolisRestore(n_bootstrap=1000)
+@pytest.mark.parametrize("renderer", [rr.MetropolisRestore(n_bootstrap=1000), rr.MALARestore(2e-4, n_bootstrap=1000)])
+def test_a_finishing_step_moves_only_open_tours(renderer):
+    """Finishing shares `slots` evaluations among the open lanes (speculative steps for the
+    Metropolis small step, a plain step of the first open lanes for MALA); closed lanes keep
+    their state and nothing of theirs is counted."""
     state = jax.jit(lambda k: renderer.init(TARGET, k, 16))(jax.random.key(0))
     open_lanes = np.zeros(16, bool)
     open_lanes[[1, 5, 6, 12]] = True
-    state = state._replace(in_tour=jnp.asarray(open_lanes), tour_moves=jnp.arange(16, dtype=jnp.int32))
-    small = renderer.compact(state, 8)
-    assert small.tour_moves.shape == (8,) and small.lanes.position.shape == (8, TARGET.dim)
-    np.testing.assert_array_equal(np.asarray(small.in_tour), [True] * 4 + [False] * 4)
-    np.testing.assert_array_equal(np.asarray(small.tour_moves[:4]), [1, 5, 6, 12])
-    np.testing.assert_array_equal(np.asarray(small.lanes.position[:4]), np.asarray(state.lanes.position)[[1, 5, 6, 12]])
-    assert renderer.open_tours(small) == 4 and float(jnp.sum(small.tally.film)) == 0.0
+    state = renderer.stop_starting(state._replace(in_tour=jnp.asarray(open_lanes), tour_moves=jnp.arange(16, dtype=jnp.int32)))
+    assert renderer.speculates == (type(renderer) is rr.MetropolisRestore)
+    after = jax.jit(lambda k, s: renderer.finishing_step(TARGET, k, s, 8))(jax.random.key(1), state)
+    closed = ~open_lanes
+    np.testing.assert_array_equal(np.asarray(after.lanes.position)[closed], np.asarray(state.lanes.position)[closed])
+    np.testing.assert_array_equal(np.asarray(after.tour_moves)[closed], np.arange(16)[closed])
+    assert not np.any(np.asarray(after.in_tour)[closed])
+    moves = np.asarray(after.tour_moves)[open_lanes]
+    events = int(after.tally.lane_steps) if renderer.speculates else 4  # MALA: one plain step of each open lane
+    assert int(after.tally.local_moves) + int(after.tally.kills) == events and events >= 4
+    # an open lane either ended its tour (moves reset) or made at least one more move
+    assert np.all((moves == 0) | (moves > np.array([1, 5, 6, 12])))
 
 
 def test_driver_time_budget():
