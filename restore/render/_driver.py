@@ -15,7 +15,6 @@ import numpy as np
 
 from .._checkpoint import key_fingerprint, load_checkpoint, save_checkpoint
 from .._driver import Budget, Meter, drive
-from .._progress import console_note
 from .._validation import check_interval
 from ._pss import check_target
 from ._renderer import (
@@ -330,15 +329,17 @@ def _finish(renderer, finisher, state, totals, key_run, chunks, chunk, progress,
     start, taken, evaluations = time.perf_counter(), 0, 0
     state = renderer.stop_starting(state)
     open_work = renderer.open_tours(state)
-    if open_work and progress:
-        console_note(f"finishing the {open_work} open tours (no new tours start)")
     slots, finish = finisher
+    meter = Meter(progress and open_work > 0, "finishing open tours (none start)", open_work, "tours")
     try:
-        while renderer.open_tours(state) > 0:
-            advanced, n = finish(jax.random.fold_in(key_run, chunks), state, jnp.asarray(chunk, jnp.int32))
-            drained = host_tally(advanced.tally, totals)
-            state, totals, chunks = zero_tally(advanced), drained, chunks + 1
-            taken, evaluations = taken + int(n), evaluations + int(n) * slots * step_cost // lanes
+        with meter.shown():
+            while (still_open := renderer.open_tours(state)) > 0:
+                meter.update(open_work - still_open, f"{still_open:,} open, {taken:,} steps")
+                advanced, n = finish(jax.random.fold_in(key_run, chunks), state, jnp.asarray(chunk, jnp.int32))
+                drained = host_tally(advanced.tally, totals)
+                state, totals, chunks = zero_tally(advanced), drained, chunks + 1
+                taken, evaluations = taken + int(n), evaluations + int(n) * slots * step_cost // lanes
+            meter.update(open_work, f"{taken:,} steps")
     except KeyboardInterrupt:
         return (totals, chunks, taken, evaluations, time.perf_counter() - start), True
     return (totals, chunks, taken, evaluations, time.perf_counter() - start), False
