@@ -14,15 +14,13 @@ draws and use the bootstrap only for `c`. Prints one table and writes `seeds.md`
 from __future__ import annotations
 
 import argparse
-import csv
-import io
 import time
 from pathlib import Path
 
 import jax
 import numpy as np
 
-from restore._io import matplotlib_for, save_and_close, write_text
+from restore._io import matplotlib_for, save_and_close, write_csv, write_text
 from restore.render import PSSMLT, MetropolisRestore, relative_mse, render
 
 METHODS = {"pssmlt": PSSMLT, "restore": MetropolisRestore}
@@ -59,11 +57,7 @@ def main() -> None:
                 print(f"{args.scene} {method} bootstrap={size} seed={seed}: relMSE {error:.4g}, {result.seconds:.1f} s; "
                       f"wall {time.perf_counter() - start:.0f} s", flush=True)
     args.out.mkdir(parents=True, exist_ok=True)
-    text = io.StringIO()
-    writer = csv.DictWriter(text, fieldnames=list(rows[0]))
-    writer.writeheader()
-    writer.writerows(rows)
-    write_text(args.out / "seeds.csv", text.getvalue(), newline="")
+    write_csv(args.out / "seeds.csv", rows)
     table = summary(rows, sizes)
     write_text(args.out / "seeds.md", table)
     plot(rows, sizes, args.out / "seeds.png", args.scene)

@@ -12,15 +12,13 @@ writes `sweep.md`, `sweep.csv` and `sweep.png` into `--out`.
 from __future__ import annotations
 
 import argparse
-import csv
-import io
 import time
 from pathlib import Path
 
 import jax
 import numpy as np
 
-from restore._io import matplotlib_for, save_and_close, write_text
+from restore._io import matplotlib_for, save_and_close, write_csv, write_text
 from restore.render import PSSMLT, MetropolisRestore, relative_mse, render
 from restore.render._methods import LANES, P_LARGE, TOUR_LENGTH
 
@@ -71,11 +69,7 @@ def main() -> None:
                       f"{result.evaluations / result.seconds:.3g} paths/s; wall {time.perf_counter() - start:.0f} s",
                       flush=True)
     args.out.mkdir(parents=True, exist_ok=True)
-    text = io.StringIO()
-    writer = csv.DictWriter(text, fieldnames=list(rows[0]))
-    writer.writeheader()
-    writer.writerows(rows)
-    write_text(args.out / "sweep.csv", text.getvalue(), newline="")
+    write_csv(args.out / "sweep.csv", rows)
     table = summary(rows, scenes)
     write_text(args.out / "sweep.md", table)
     plot(rows, scenes, args.out / "sweep.png")

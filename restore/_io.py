@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import csv
 import glob
+import io
 import os
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 
@@ -42,6 +44,17 @@ def write_text(path: str | os.PathLike, text: str, newline: str | None = None) -
             handle.write(text)
 
     return atomic_write(path, write)
+
+
+def write_csv(path: str | os.PathLike, rows: Sequence[Mapping], columns: Sequence[str] | None = None) -> Path:
+    """Write `rows` (mappings) to `path` as CSV atomically, with a header of `columns` (default:
+    the first row's keys); keys of a row outside `columns` are left out."""
+    columns = list(rows[0]) if columns is None else list(columns)
+    text = io.StringIO()
+    writer = csv.DictWriter(text, fieldnames=columns, extrasaction="ignore")
+    writer.writeheader()
+    writer.writerows(rows)
+    return write_text(path, text.getvalue(), newline="")
 
 
 def save_figure(fig, path: str | os.PathLike, **kwargs) -> Path:

@@ -2,14 +2,12 @@
 
 from __future__ import annotations
 
-import csv
-import io
 import math
 from pathlib import Path
 
 import numpy as np
 
-from .._io import write_text
+from .._io import write_csv, write_text
 from ._evidence_problems import get_evidence_problem
 from ._report import _fmt, machine_table
 
@@ -145,12 +143,7 @@ def write_evidence(result, out: Path) -> dict[str, Path]:
     """Write `evidence.csv` and `evidence.md` into `out` (created if needed), each atomically."""
     out.mkdir(parents=True, exist_ok=True)
     files = {"csv": out / "evidence.csv", "markdown": out / "evidence.md"}
-    text = io.StringIO()
-    writer = csv.DictWriter(text, fieldnames=COLUMNS)
-    writer.writeheader()
-    for r in result.rows:
-        writer.writerow({k: r[k] for k in COLUMNS})
-    write_text(files["csv"], text.getvalue(), newline="")
+    write_csv(files["csv"], result.rows, COLUMNS)
     result.files = files
     write_text(files["markdown"], markdown(result))
     return files

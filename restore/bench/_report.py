@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import csv
 import datetime
-import io
 import math
 import os
 import platform
@@ -14,7 +12,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from .._io import write_text
+from .._io import write_csv, write_text
 from ._metrics import pooled_rms
 from ._problems import get_problem
 
@@ -185,12 +183,7 @@ def write_results(result, out: Path) -> dict[str, Path]:
 
     out.mkdir(parents=True, exist_ok=True)
     files: dict[str, Path] = {"csv": out / "results.csv"}
-    text = io.StringIO()
-    writer = csv.DictWriter(text, fieldnames=COLUMNS)
-    writer.writeheader()
-    for r in result.rows:
-        writer.writerow({k: r[k] for k in COLUMNS})
-    write_text(files["csv"], text.getvalue(), newline="")
+    write_csv(files["csv"], result.rows, COLUMNS)
     for problem in result.config.problems:
         path = plot_curves(result.rows, problem, out / f"curves-{problem}.png")
         if path is not None:
