@@ -133,8 +133,9 @@ class RestoreTally(NamedTuple):
 
 class RestoreRenderState(NamedTuple):
     """State of a Restore render: the core sampler's lane states, each lane's local moves in its
-    current tour (and how many were accepted: the acceptance guess of speculative finishing), which lanes are in a counted tour (`in_tour`), whether new tours still start
-    (`starting`; false once a complete-tours render finishes its open tours), constants and sums."""
+    current tour and how many were accepted (the acceptance guess of speculative finishing),
+    which lanes are in a counted tour (`in_tour`), whether new tours still start (`starting`;
+    false once a complete-tours render finishes its open tours), constants and sums."""
 
     lanes: RestoreState
     tour_moves: Int[Array, " N"]
@@ -301,8 +302,9 @@ class AbstractPSSRestore(AbstractRenderer):
 
     def finishing_step(self, target, key: PRNGKeyArray, state: RestoreRenderState, slots: int) -> RestoreRenderState:
         """Advance the open tours (no new tour starts) with one batched evaluation of `slots`
-        points: speculative steps (`speculates`: each open lane runs up to `slots // open`
-        events on its accept path), else one plain step of the first `slots` open lanes."""
+        points: speculative steps (`speculates`: each open lane gets a tree of `slots // open`
+        candidate events, shaped by its tour's acceptance so far), else one plain step of the
+        first `slots` open lanes."""
         if not self.speculates:
             return self._step_open_lanes(target, key, state, slots)
         sampler = self.sampler(target, state.params.log_rate)
@@ -316,7 +318,8 @@ class AbstractPSSRestore(AbstractRenderer):
         n = state.tour_moves.shape[0]
         at_last = jnp.where(run.last, run.lane, n)
         tour_moves = state.tour_moves.at[at_last].set(jnp.where(run.info.regenerated, 0, moves + 1), mode="drop")
-        tour_accepted = state.tour_accepted.at[jnp.where(run.valid, run.lane, n)].add(run.info.accepted.astype(jnp.int32), mode="drop")
+        accepted = run.info.accepted.astype(jnp.int32)
+        tour_accepted = state.tour_accepted.at[jnp.where(run.valid, run.lane, n)].add(accepted, mode="drop")
         tour_accepted = tour_accepted.at[jnp.where(run.last & run.info.regenerated, run.lane, n)].set(0, mode="drop")
         return state._replace(
             lanes=run.states, tour_moves=tour_moves, tour_accepted=tour_accepted, in_tour=run.active, tally=tally
