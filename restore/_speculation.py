@@ -211,7 +211,7 @@ def speculative_steps(
     src = jnp.maximum(source, 0)
     held_value = lambda mine, cand: jnp.where(_rows(own, mine), mine, cand[src])  # noqa: E731
     current = Point(
-        held_value(held.position, candidates),
+        position.astype(candidates.dtype),  # the held positions the proposals started from
         held_value(held.logdensity, evaluated.logdensity),
         None,
         jax.tree.map(held_value, held.aux, evaluated.aux),
@@ -234,7 +234,7 @@ def speculative_steps(
     next_node = jnp.where(local.accepted, child_accept, child_reject)
     last = valid & (killed | (next_node >= d))
     end = jax.tree.map(lambda c, m: jnp.where(_rows(killed, c), c, m), current, moved)
-    _, _, _, end_log_kill, _ = jax.vmap(lambda p: sampler._terms(0, p, jnp.zeros((), bool), log_rates))(end)
+    end_log_kill = jnp.where(killed | ~local.accepted, current_log_kill, candidate_log_kill)
     target = jnp.where(last, lane, n_lanes)  # out of range: dropped
     put = lambda s, v: s.at[target].set(v, mode="drop")  # noqa: E731
     new_states = states._replace(
