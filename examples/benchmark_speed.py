@@ -5,8 +5,9 @@ random-walk scale, it measures (median of repeats; compilation excluded from the
 
 - BlackJAX RMH: `lax.scan` over `vmap(step)`, keeping a running sum of positions (the
   yardstick: the cheapest useful MCMC loop);
-- the bare jump-Restore step: `lax.scan` over `vmap(JumpRestore.step)` with a running
-  Rao-Blackwellised sum (the step alone, without the driver);
+- the bare jump-Restore step: `lax.scan` over `JumpRestore.step_lanes` (`vmap(step)`, with
+  the next tours' starts drawn for the killed lanes only) with a running Rao-Blackwellised
+  sum (the step alone, without the driver);
 - `restore.sample` with `JumpRestore` (everything a user gets: the streamed tour sums,
   the tour histogram and tail records, default observables `x` and `x**2`);
 - `restore.sample` with `MixtureMH` (the Metropolis baseline with the same large step);
@@ -56,13 +57,13 @@ def blackjax_rmh(logdensity, scale: float, x0, steps: int, repeats: int) -> tupl
 
 
 def bare_restore_step(sampler, lanes: int, steps: int, repeats: int) -> tuple[float, float]:
-    """Steps per second of `vmap(JumpRestore.step)` in a scan, with a Rao-Blackwellised running sum."""
+    """Steps per second of `JumpRestore.step_lanes` in a scan, with a Rao-Blackwellised running sum."""
     states = jax.vmap(sampler.init)(jax.random.split(jax.random.key(0), lanes))
 
     def run(key, states):
         def body(carry, key):
             states, total = carry
-            states, info = jax.vmap(sampler.step)(jax.random.split(key, lanes), states)
+            states, info = sampler.step_lanes(jax.random.split(key, lanes), states)
             return (states, total + info.expected_holding_time[:, None] * info.position), None
 
         start = (states, jnp.zeros_like(states.position))

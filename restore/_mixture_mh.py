@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import ClassVar, NamedTuple
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, PRNGKeyArray
@@ -12,6 +13,7 @@ from jaxtyping import Array, Float, PRNGKeyArray
 from ._parts import check_parts
 from ._point import Point, evaluate
 from ._sampler import AbstractSampler, StepInfo
+from ._sparse_draws import draw_slots, draw_where
 from ._validation import check_point
 from .local import AbstractLocalKernel
 from .local._base import metropolis_accept
@@ -48,6 +50,7 @@ class MixtureMH(AbstractSampler):
     local: AbstractLocalKernel
     regeneration: AbstractRegeneration
     large_step_probability: Float[Array, ""]
+    _large_share: float = eqx.field(static=True)
 
     has_tours: ClassVar[bool] = False
 
@@ -66,6 +69,7 @@ class MixtureMH(AbstractSampler):
         self.local = local
         self.regeneration = regeneration
         self.large_step_probability = jnp.asarray(q)
+        self._large_share = q
 
     @property
     def dim(self) -> int:
@@ -88,16 +92,43 @@ class MixtureMH(AbstractSampler):
         log_u = self.regeneration.log_prob(position).astype(position.dtype)
         return MixtureMHState(point.position, point.logdensity, point.grad, log_u)
 
-    def step(self, key: PRNGKeyArray, state: MixtureMHState) -> tuple[MixtureMHState, StepInfo]:
-        """One MH step: a large step with probability `q`, else a local move."""
+    def step_lanes(self, keys: PRNGKeyArray, states: MixtureMHState) -> tuple[MixtureMHState, StepInfo]:
+        """`vmap(step)`, with the large-step candidates drawn only for the lanes that take a large step."""
+        slots = draw_slots(keys.shape[0], self._large_share)
+        if slots is None:
+            return super().step_lanes(keys, states)
+
+        def decide(key, state):
+            k_choice, _, _, k_regen = jax.random.split(key, 4)
+            return self._large(k_choice, state), k_regen
+
+        large, regen_keys = jax.vmap(decide)(keys, states)
+        fresh = draw_where(self._fresh, large, slots, regen_keys, states.position)
+        return jax.vmap(self.step)(keys, states, fresh)
+
+    def _large(self, key: PRNGKeyArray, state: MixtureMHState) -> Array:
+        return jax.random.uniform(key, dtype=state.logdensity.dtype) < self.large_step_probability
+
+    def _fresh(self, key: PRNGKeyArray, position: Array) -> Array:
+        return self.regeneration.sample(key).astype(position.dtype)
+
+    def step(
+        self, key: PRNGKeyArray, state: MixtureMHState, fresh: Array | None = None
+    ) -> tuple[MixtureMHState, StepInfo]:
+        """One MH step: a large step with probability `q`, else a local move.
+
+        `fresh` is the large-step candidate, drawn beforehand from this step's key as the
+        step would draw it (`step_lanes` draws it for the lanes that take a large step only).
+        """
         k_choice, k_propose, k_accept, k_regen = jax.random.split(key, 4)
         dtype = state.logdensity.dtype
-        large = jax.random.uniform(k_choice, dtype=dtype) < self.large_step_probability
+        large = self._large(k_choice, state)
 
         point = Point(state.position, state.logdensity, state.logdensity_grad)
         candidate, aux = self.local.propose(k_propose, point, self.logdensity)
         candidate = candidate.astype(state.position.dtype)
-        fresh = self.regeneration.sample(k_regen).astype(candidate.dtype)
+        if fresh is None:
+            fresh = self._fresh(k_regen, state.position)
         evaluated, invalid = evaluate(self.logdensity, jnp.where(large, fresh, candidate), self.local.uses_gradient)
         log_u_new = self.regeneration.log_prob(evaluated.position).astype(dtype)
 

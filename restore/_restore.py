@@ -29,6 +29,7 @@ from ._rate import (
     pilot_log_z,
 )
 from ._sampler import AbstractSampler, RunFacts, StepInfo
+from ._sparse_draws import draw_slots, draw_where
 from ._validation import check_integer, check_logdensity, check_point, check_positive
 from .dynamics import AbstractDiffusion, AbstractDynamics, AbstractJumpDynamics
 from .transfer import AbstractTransfer
@@ -60,6 +61,20 @@ class RestoreState(NamedTuple):
     tour: Int[Array, ""]
     pending: Bool[Array, ""]
     aux: Any = None
+
+
+class _JumpKeys(NamedTuple):
+    """The keys of one jump step, split from the step's key in this order."""
+
+    event: PRNGKeyArray
+    hold: PRNGKeyArray
+    propose: PRNGKeyArray
+    accept: PRNGKeyArray
+    regenerate: PRNGKeyArray
+
+
+def _jump_keys(key: PRNGKeyArray) -> _JumpKeys:
+    return _JumpKeys(*jax.random.split(key, 5))
 
 
 def _as_phases(value, name: str) -> tuple:
@@ -326,33 +341,83 @@ class AbstractRestore(AbstractSampler):
 
     def step(self, key: PRNGKeyArray, state: RestoreState) -> tuple[RestoreState, StepInfo]:
         """One event of the lane: a local move or a kill (jump dynamics), or one thinning candidate (diffusions)."""
+        if self.is_diffusion:
+            return self._in_phase(state, lambda k, log_rates: self._diffusion_step(k, key, state, log_rates))
+        return self._decided_step(_jump_keys(key), state)
+
+    def step_lanes(self, keys: PRNGKeyArray, states: RestoreState) -> tuple[RestoreState, StepInfo]:
+        """`vmap(step)`, with the next tours' starts drawn only for the lanes killed in this step.
+
+        Equal to `vmap(step)` lane by lane (each lane's start comes from its own key); the
+        gathered draws save the regeneration draw of every lane that moves locally.
+        """
+        slots = None if self.is_diffusion else draw_slots(keys.shape[0], self._kill_fraction())
+        if slots is None:
+            return super().step_lanes(keys, states)
+
+        def decide(key, state):
+            split = _jump_keys(key)
+            killed = self._in_phase(state, lambda k, _: self._killed(k, split.event, state))
+            return split, killed, self._next_phase(state.tour + 1)
+
+        split, killed, phases = jax.vmap(decide)(keys, states)
+        starts = draw_where(self._regenerate, killed, slots, phases, split.regenerate, states.position)
+        return jax.vmap(self._decided_step)(split, states, killed, starts)
+
+    def _in_phase(self, state: RestoreState, fn: Callable[[int, Array], Any]):
+        """`fn(k, log_rates)` for the lane's phase `k`."""
         log_rates = self._require_rate()
-        fn = self._diffusion_step if self.is_diffusion else self._jump_step
         if self.num_phases == 1:
-            return fn(0, key, state, log_rates)
-        return jax.lax.switch(state.phase, [lambda k=k: fn(k, key, state, log_rates) for k in range(self.num_phases)])
+            return fn(0, log_rates)
+        return jax.lax.switch(state.phase, [lambda k=k: fn(k, log_rates) for k in range(self.num_phases)])
 
-    def _jump_step(self, k: int, key: PRNGKeyArray, state: RestoreState, log_rates: Array):
+    def _decided_step(self, keys: _JumpKeys, state: RestoreState, killed: Array | None = None, start: Array | None = None):
+        """A jump step from its keys; `killed` and the next tour's `start`, if given, were drawn
+        from these keys beforehand (as the step would draw them)."""
+        return self._in_phase(state, lambda k, log_rates: self._jump_step(k, keys, state, log_rates, killed, start))
+
+    def _kill_fraction(self) -> float | None:
+        """The share of a stationary run's events that are kills, `1 / (1 + r T)` for tours of
+        mean duration `T` and local rate `r` (`None` when the tours' length is not known)."""
+        if self.tour_length is None:
+            return None
+        rates = [d.rate for d in self.dynamics]  # type: ignore[attr-defined]
+        return max(1.0 / (1.0 + float(r) * float(t)) for r, t in zip(rates, self.tour_length, strict=True))
+
+    def _kill_terms(self, k: int, state: RestoreState):
+        """`log gamma` (the total kill rate), the negative-rate flag and `log r` of phase `k`."""
         dynamics: AbstractJumpDynamics = self.dynamics[k]
-        k_event, k_hold, k_propose, k_accept, k_regen = jax.random.split(key, 5)
-        dtype = state.logdensity.dtype
-        log_r = jnp.log(jnp.asarray(dynamics.rate, dtype))
+        log_r = jnp.log(jnp.asarray(dynamics.rate, state.logdensity.dtype))
         if dynamics.is_invariant:
-            log_gamma, negative = state.log_kill_rate, jnp.zeros((), bool)
-        else:
-            log_gamma, negative = log_total_kill_rate(state.log_kill_rate, state.adjoint_ratio)
+            return state.log_kill_rate, jnp.zeros((), bool), log_r
+        return (*log_total_kill_rate(state.log_kill_rate, state.adjoint_ratio), log_r)
 
-        killed = log_uniform(k_event, dtype) < kill_log_probability(log_gamma, log_r)
+    def _killed(self, k: int, key: PRNGKeyArray, state: RestoreState) -> Array:
+        """Whether the event is a kill (against a local move)."""
+        log_gamma, _, log_r = self._kill_terms(k, state)
+        return log_uniform(key, state.logdensity.dtype) < kill_log_probability(log_gamma, log_r)
+
+    def _regenerate(self, phase: Array, key: PRNGKeyArray, position: Array) -> Array:
+        """The start of the next tour, of phase `phase`, after a kill at `position`."""
+        return self._by_phase(phase, lambda j: self.transfers[j].sample(key, position)).astype(position.dtype)
+
+    def _jump_step(self, k: int, keys: _JumpKeys, state: RestoreState, log_rates: Array, killed=None, fresh=None):
+        dynamics: AbstractJumpDynamics = self.dynamics[k]
+        dtype = state.logdensity.dtype
+        log_gamma, negative, log_r = self._kill_terms(k, state)
+        if killed is None:
+            killed = self._killed(k, keys.event, state)
         mean_hold = jnp.exp(-log_total_rate(log_gamma, log_r))
-        hold = jax.random.exponential(k_hold, dtype=dtype) * mean_hold
+        hold = jax.random.exponential(keys.hold, dtype=dtype) * mean_hold
 
         point = Point(state.position, state.logdensity, state.logdensity_grad, state.aux)
-        candidate, aux = dynamics.propose(k_propose, point, self.log_value)
+        candidate, aux = dynamics.propose(keys.propose, point, self.log_value)
         candidate = candidate.astype(state.position.dtype)
         next_phase = self._next_phase(state.tour + 1)
-        fresh = self._by_phase(next_phase, lambda j: self.transfers[j].sample(k_regen, state.position)).astype(candidate.dtype)
+        if fresh is None:
+            fresh = self._regenerate(next_phase, keys.regenerate, state.position)
         evaluated, invalid = evaluate(self.logdensity, jnp.where(killed, fresh, candidate), self.uses_gradient, self.has_aux)
-        moved, local_info = dynamics.accept(k_accept, point, evaluated, aux)
+        moved, local_info = dynamics.accept(keys.accept, point, evaluated, aux)
         new_point = jax.tree.map(lambda a, b: jnp.where(killed, a, b), evaluated, moved)
         new_phase = jnp.where(killed, next_phase, state.phase) if self.num_phases > 1 else state.phase
 

@@ -141,7 +141,7 @@ def _advance(
         carry, done = loop
         keys = jax.vmap(lambda k: jax.random.fold_in(k, carry.step))(lane_keys)
         if sharding is None:
-            new_states, info = jax.vmap(sampler.step)(keys, carry.states)
+            new_states, info = sampler.step_lanes(keys, carry.states)
             observed = info.position
             values = jax.vmap(observe)(observed)
         else:

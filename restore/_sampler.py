@@ -14,6 +14,7 @@ import abc
 from typing import Any, NamedTuple
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, PRNGKeyArray
@@ -100,6 +101,14 @@ class AbstractSampler(eqx.Module):
     @abc.abstractmethod
     def step(self, key: PRNGKeyArray, state: Any) -> tuple[Any, StepInfo]:
         """One step of one lane."""
+
+    def step_lanes(self, keys: PRNGKeyArray, states: Any) -> tuple[Any, StepInfo]:
+        """One step of every lane (`keys` and `states` with a leading lane axis).
+
+        `vmap(step)`; a sampler may batch work that only some lanes need, with results
+        equal to `vmap(step)` lane by lane.
+        """
+        return jax.vmap(self.step)(keys, states)
 
     @property
     def is_diffusion(self) -> bool:

@@ -282,7 +282,7 @@ class AbstractPSSRestore(AbstractRenderer):
     def step(self, target, key: PRNGKeyArray, state: RestoreRenderState) -> RestoreRenderState:
         sampler = self.sampler(target, state.params.log_rate)
         n, moves, counted = state.tour_moves.shape[0], state.tour_moves, state.in_tour
-        lanes, info = jax.vmap(sampler.step)(jax.random.split(key, n), state.lanes)
+        lanes, info = sampler.step_lanes(jax.random.split(key, n), state.lanes)
         tally = _add_events(
             state.tally, target, info, counted, state.lanes.log_kill_rate, moves, state.starting, jnp.int32(n)
         )
