@@ -17,8 +17,9 @@ the image of Mitsuba's `path` integrator with `max_depth = M`: the same estimato
 
 Small steps must keep `v` (the depth and strategy) fixed, as in MMLT: `q` changes from
 cell to cell, and a move across cells would need the other strategy's density. Move
-only the coordinates `x[1:]` (`restore.local` kernels with `frozen=1`); regenerations /
-large steps draw all of `x` uniformly.
+only the coordinates `x[1:]` (`restore.local` kernels with `frozen=1`; the renderers of
+`restore.render` read `frozen_coordinates = 1`); regenerations / large steps draw all of
+`x` uniformly.
 
 The pixel of a light-tracing strategy (`t = 1`) comes from the traced connection, not
 from `u[0:2]`: `pixel_from_evaluation` is `True`, and `jax_evaluate_with_pixel` returns
@@ -77,12 +78,14 @@ class MultiplexedBDPT:
         strategy_dim: `D`, the primary samples of one strategy.
         pairs: `(k, s)` int32 arrays of the multiplexed pairs; `q`: their probabilities.
         pmf: the depth pmf. `pixel_from_evaluation`: always `True`.
+        frozen_coordinates: 1 (`v`, which small steps keep).
 
     Raises:
         UnsupportedSceneError: for a scene the bidirectional tracer cannot reproduce.
     """
 
     pixel_from_evaluation = True
+    frozen_coordinates = 1
 
     def __init__(
         self,

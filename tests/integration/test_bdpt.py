@@ -35,8 +35,8 @@ from targets.mitsuba import (
     render_native,
 )
 from targets.mitsuba._multiplex import depth_pmf, select_pairs, strategy_pairs, strategy_pmf
+from tests._image_agreement import LUMINANCE, agreement_z, failures
 
-LUMINANCE = np.array([0.212671, 0.715160, 0.072169])
 REPLICAS = 16
 RES = 16
 
@@ -70,68 +70,31 @@ def _bdpt_replicas(target: MultiplexedBDPT, spp: int = 64) -> np.ndarray:
     return np.stack(images).astype(np.float64) @ LUMINANCE
 
 
-def _agreement_z(a: np.ndarray, b: np.ndarray, min_lit: float = 0.5) -> dict[str, np.ndarray]:
-    """z-scores of `mean(a) - mean(b)` per pixel, per 4x4 block and for the total (replicas first).
-
-    At least a fraction `min_lit` of the pixels and blocks must be lit (non-zero error).
-    """
-    n_a, n_b = len(a), len(b)
-    h, w = a.shape[1:]
-
-    def blocks(x: np.ndarray) -> np.ndarray:
-        return x.reshape(len(x), h // 4, 4, w // 4, 4).sum((2, 4)).reshape(len(x), -1)
-
-    views = {
-        "pixel": (a.reshape(n_a, -1), b.reshape(n_b, -1)),
-        "block": (blocks(a), blocks(b)),
-        "total": (a.sum((1, 2))[:, None], b.sum((1, 2))[:, None]),
-    }
-    out = {}
-    for name, (x, y) in views.items():
-        se = np.sqrt(x.var(0, ddof=1) / n_a + y.var(0, ddof=1) / n_b)
-        se += 1e-5 * (np.abs(x.mean(0)) + np.abs(y.mean(0)))  # float32 rounding
-        keep = se > 0
-        assert keep.mean() >= min_lit, f"{name}: too many black {name}s"
-        out[name] = (x.mean(0) - y.mean(0))[keep] / se[keep]
-    return out
-
-
-def _failures(z: dict[str, np.ndarray]) -> list[str]:
-    """The agreement criteria that `z` violates (empty: the images agree)."""
-    checks = {
-        "per-pixel mean z^2": (np.mean(z["pixel"] ** 2), 1.5),
-        "per-block mean z^2": (np.mean(z["block"] ** 2), 2.5),
-        "max block |z|": (np.abs(z["block"]).max(), 4.5),
-        "|total z|": (abs(z["total"][0]), 4.0),
-    }
-    return [f"{name} = {value:.2f} >= {limit}" for name, (value, limit) in checks.items() if value >= limit]
-
-
 # --------------------------------------------------------------------------- agreement with `path`
 
 
 def test_bdpt_matches_native_cornell_box(cornell, native_cornell):
-    assert _failures(_agreement_z(_bdpt_replicas(cornell), native_cornell)) == []
+    assert failures(agreement_z(_bdpt_replicas(cornell), native_cornell)) == []
 
 
 def test_bdpt_matches_native_through_glass(mi):
     """A glass sphere under a small light: delta vertices are never connected through,
     and the MIS weights leave out the strategies that would need it."""
     target = MultiplexedBDPT("caustic", resolution=(RES, RES), max_depth=4, bootstrap=2000)
-    assert _failures(_agreement_z(_bdpt_replicas(target), _native_replicas(target.scene, 4))) == []
+    assert failures(agreement_z(_bdpt_replicas(target), _native_replicas(target.scene, 4))) == []
 
 
 def test_power_heuristic_matches_native(mi, native_cornell, cornell):
     target = MultiplexedBDPT("cornell_box", resolution=(RES, RES), max_depth=4, depth_pmf=cornell.pmf, heuristic="power")
-    assert _failures(_agreement_z(_bdpt_replicas(target), native_cornell)) == []
+    assert failures(agreement_z(_bdpt_replicas(target), native_cornell)) == []
 
 
 @pytest.mark.parametrize("defect", ["unit_weights", "unnormalised_power", "drop_light_tracing"])
 def test_defects_fail_the_comparison(mi, cornell, native_cornell, defect):
     target = MultiplexedBDPT("cornell_box", resolution=(RES, RES), max_depth=4, depth_pmf=cornell.pmf, _defect=defect)
-    failures = _failures(_agreement_z(_bdpt_replicas(target), native_cornell))
-    print(defect, failures)
-    assert failures != []
+    failed = failures(agreement_z(_bdpt_replicas(target), native_cornell))
+    print(defect, failed)
+    assert failed != []
 
 
 def _large_light(mi) -> dict:
@@ -150,9 +113,9 @@ def test_camera_paths_hitting_the_light_matter(mi, defect):
     """With a large light, unidirectional hits (`s = 0`) carry a large MIS weight: leaving
     them out must fail the comparison that the full estimator passes."""
     target = MultiplexedBDPT(_large_light(mi), bootstrap=2000, _defect=defect)
-    failures = _failures(_agreement_z(_bdpt_replicas(target), _native_replicas(target.scene, 2)))
-    print(defect, failures)
-    assert (failures == []) == (defect is None)
+    failed = failures(agreement_z(_bdpt_replicas(target), _native_replicas(target.scene, 2)))
+    print(defect, failed)
+    assert (failed == []) == (defect is None)
 
 
 def test_strategies_of_one_depth_sum_to_that_depth(cornell, native_cornell):
@@ -163,7 +126,7 @@ def test_strategies_of_one_depth_sum_to_that_depth(cornell, native_cornell):
     previous = np.zeros_like(native_cornell)
     for k in range(1, cornell.max_depth + 1):
         upto_k = native_cornell if k == cornell.max_depth else _native_replicas(cornell.scene, k, seed=400 + 50 * k)
-        z = _agreement_z(per_pair[:, k_of_pair == k].sum(1), upto_k - previous, min_lit=0.0)  # k = 1: the light
+        z = agreement_z(per_pair[:, k_of_pair == k].sum(1), upto_k - previous, min_lit=0.0)  # k = 1: the light
         assert abs(z["total"][0]) < 4.0, f"depth {k}: total z = {z['total'][0]:.2f}"
         assert np.mean(z["block"] ** 2) < 2.5, f"depth {k}: per-block mean z^2 = {np.mean(z['block'] ** 2):.2f}"
         previous = _native_replicas(cornell.scene, k, seed=500 + 50 * k)
