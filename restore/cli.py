@@ -325,6 +325,9 @@ def render_compare(
     tour_length: float = typer.Option(TOUR_LENGTH, min=1e-6, help="Restore's mean tour length (local moves per tour)."),
     p_large: float = typer.Option(P_LARGE, min=1e-6, max=1.0, help="PSSMLT's large-step probability."),
     reference_spp: int = typer.Option(4096, min=1, help="Samples per pixel of the cached reference."),
+    technique: str = typer.Option(
+        "path", help="Target of the PSS methods: path (path tracing) or bdpt (multiplexed BDPT; pssmlt is then MMLT)."
+    ),
     out: Path = typer.Option(Path("render-results"), help="Folder for results.md, results.csv and the figures."),
     progress: bool = typer.Option(True, help="Progress bars (without: one line per render)."),
 ) -> None:
@@ -335,7 +338,8 @@ def render_compare(
         result = compare_renderers(
             _names(scenes), _names(methods), seconds=time_budget, realisations=realisations,
             resolution=_resolution(resolution), max_depth=max_depth, lanes=lanes, tour_length=tour_length,
-            p_large=p_large, reference_spp=reference_spp, out_dir=out, progress=progress, log=console.print,
+            p_large=p_large, reference_spp=reference_spp, technique=technique, out_dir=out, progress=progress,
+            log=console.print,
         )
     except (FileNotFoundError, ValueError, ImportError, RuntimeError) as error:
         _fail(str(error))

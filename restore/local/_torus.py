@@ -88,21 +88,36 @@ class TorusMetropolis(AbstractLocalKernel):
 
     Arguments:
         mutation: the small step, e.g. `KelemenMutation()` (the default).
+        frozen: the number of leading coordinates the step never moves (default 0). With
+            multiplexed light transport the first coordinate picks the path depth and
+            strategy, which small steps must keep (`targets.mitsuba.MultiplexedBDPT`).
+            The step stays symmetric, so the kernel stays reversible.
     """
 
     mutation: AbstractTorusMutation
+    frozen: int = eqx.field(static=True)
     proposes_from_position: ClassVar[bool] = True
 
-    def __init__(self, mutation: AbstractTorusMutation | None = None):
+    def __init__(self, mutation: AbstractTorusMutation | None = None, frozen: int = 0):
         mutation = KelemenMutation() if mutation is None else mutation
         if not isinstance(mutation, AbstractTorusMutation):
             raise TypeError(
                 f"mutation must be a torus mutation (e.g. KelemenMutation()), got {type(mutation).__name__}"
             )
+        if isinstance(frozen, bool) or not isinstance(frozen, int) or frozen < 0:
+            raise ValueError(f"frozen must be a non-negative integer, got {frozen!r}")
         self.mutation = mutation
+        self.frozen = frozen
+
+    def check_dim(self, dim: int) -> None:
+        if self.frozen >= dim:
+            raise ValueError(f"frozen={self.frozen} leaves no coordinate to move in dimension {dim}")
 
     def propose(self, key: PRNGKeyArray, point: Point, logdensity_fn: Callable) -> tuple[Array, None]:
-        return self.mutation(key, point.position), None
+        moved = self.mutation(key, point.position)
+        if self.frozen:
+            moved = moved.at[: self.frozen].set(point.position[: self.frozen])
+        return moved, None
 
     def accept(self, key: PRNGKeyArray, point: Point, candidate: Point, aux: None) -> tuple[Point, LocalInfo]:
         return metropolis_accept(key, point, candidate, candidate.logdensity - point.logdensity)

@@ -12,6 +12,9 @@ and the local kernels are `restore.local`'s `TorusMetropolis` and `TorusMALA`:
 - `PSSMLT`: Kelemen et al.'s Metropolis light transport with expected-value splatting.
 - `ERPT`: energy redistribution path tracing, in rounds of equal-deposition chains.
 - `UniformSampler`: plain PSS path tracing (the sanity baseline).
+On a multiplexed target (`targets.mitsuba.MultiplexedBDPT`: `frozen_coordinates`,
+`pixel_from_evaluation`) small steps keep the depth and strategy, so `PSSMLT` is MMLT, and
+splats take the pixel the tracer found.
 `render` runs any of them to a time or evaluation budget; `restore.render` metrics
 (`l1`, `mse`, `relative_mse`, `mrse`, `mape`, `variance_across`) compare images.
 """
@@ -29,6 +32,7 @@ from ._metrics import mse as mse
 from ._metrics import relative_mse as relative_mse
 from ._metrics import variance_across as variance_across
 from ._metropolis_restore import MetropolisRestore as MetropolisRestore
+from ._pss import EvaluatedPixel as EvaluatedPixel
 from ._pss import PSSTarget as PSSTarget
 from ._pss import evaluate_points as evaluate_points
 from ._pss import pss_logdensity as pss_logdensity

@@ -2,7 +2,9 @@
 
 For each scene: a cached high-spp reference (Mitsuba's `path` integrator), then every
 method for `seconds` of wall time (compilation excluded), `realisations` times with
-independent keys. Errors are measured against the reference; error-versus-time curves
+independent keys. The PSS methods run on the path-tracing target (`technique="path"`,
+`PrimarySampleSpace`) or on multiplexed BDPT (`technique="bdpt"`, `MultiplexedBDPT`:
+PSSMLT is then MMLT); `path` is always Mitsuba's own path tracer. Errors are measured against the reference; error-versus-time curves
 come from the progressive images. Writes `results.md`, `results.csv` and one figure per
 scene (`scene-<name>.png`: reference and method images, zoomed crops, error curves).
 """
@@ -24,6 +26,9 @@ from .._io import matplotlib_for, save_and_close, write_text
 from ._driver import render
 from ._methods import GRADIENT_METHODS, LANES, METHODS, P_LARGE, TOUR_LENGTH, make_renderer
 from ._metrics import l1, mape, mrse, mse, relative_mse, variance_across
+
+#: The primary-sample-space targets the PSS methods can run on.
+TECHNIQUES = ("path", "bdpt")
 
 CSV_COLUMNS = ("scene", "method", "realisation", "seconds", "evaluations", "l1", "mse", "relative_mse", "mrse", "mape")
 
@@ -58,6 +63,7 @@ class RenderComparison:
     skipped: dict[tuple[str, str], str]
     settings: dict[str, float] = dataclasses.field(default_factory=dict)  # lanes, tour_length, p_large
     files: dict[str, Path] = dataclasses.field(default_factory=dict)
+    technique: str = "path"  # the PSS methods' target: "path" (PrimarySampleSpace) or "bdpt" (MultiplexedBDPT)
 
     def mean_metric(self, scene: str, method: str, metric: str = "relative_mse") -> float:
         values = [r.metrics[metric] for r in self.runs if r.scene == scene and r.method == method]
@@ -81,11 +87,13 @@ class RenderComparison:
             if scene in self.throughput:
                 pss, native = self.throughput[scene]
                 rows.append(("PSS paths/s / native path samples/s", scene, pss / native, ">= 0.5"))
+        mlt = "MMLT" if self.technique == "bdpt" else "pssmlt"
         for scene in self.scenes:
             for other, goal in (("pssmlt", "<= 0.8"), ("path", "< 1")):
                 value = self.work_normalised(scene, "restore") / self.work_normalised(scene, other)
                 if math.isfinite(value):
-                    rows.append((f"relative MSE x time, Metropolis Restore / {other}", scene, value, goal))
+                    name = mlt if other == "pssmlt" else other
+                    rows.append((f"relative MSE x time, Metropolis Restore / {name}", scene, value, goal))
         return rows
 
 
@@ -123,6 +131,7 @@ def compare_renderers(
     tour_length: float = TOUR_LENGTH,
     p_large: float = P_LARGE,
     reference_spp: int = 4096,
+    technique: str = "path",
     out_dir: str | Path | None = None,
     progress: bool = True,
     log: Callable[[str], None] | None = None,
@@ -139,6 +148,9 @@ def compare_renderers(
         tour_length: Restore's mean tour length (local moves per tour, complete tours).
         p_large: PSSMLT's large-step probability.
         reference_spp: samples per pixel of the cached reference.
+        technique: the target of the PSS methods: `"path"` (`PrimarySampleSpace`, path
+            tracing) or `"bdpt"` (`MultiplexedBDPT`: small steps keep the depth and strategy,
+            so `pssmlt` is MMLT; gradient methods are skipped, it has no gradients).
         out_dir: where to write `results.md`, `results.csv` and the figures (nothing written if `None`).
         progress: progress bars for each render.
         log: called with one line per finished render, and with each change made to a
@@ -146,6 +158,7 @@ def compare_renderers(
             `resolution` and `max_depth`).
     """
     from targets.mitsuba import (
+        MultiplexedBDPT,
         PrimarySampleSpace,
         UnsupportedSceneError,
         load_scene,
@@ -156,6 +169,8 @@ def compare_renderers(
     bad = [m for m in methods if m not in METHODS]
     if bad:
         raise ValueError(f"unknown methods {bad}; choose from {', '.join(METHODS)}")
+    if technique not in TECHNIQUES:
+        raise ValueError(f"unknown technique {technique!r}; choose from {', '.join(TECHNIQUES)}")
     if not seconds > 0 or realisations < 1:
         raise ValueError(f"need seconds > 0 and realisations >= 1, got {seconds} and {realisations}")
     say = log or (lambda text: None)
@@ -164,10 +179,14 @@ def compare_renderers(
         scene_key = Path(scene_name).stem
         references[scene_key] = reference = reference_image(scene_name, reference_spp, resolution=resolution, max_depth=max_depth)
         scene = load_scene(scene_name, resolution, max_depth, log=lambda note, name=scene_key: say(f"{name}: note: {note}"))  # type: ignore[misc]
-        target = PrimarySampleSpace(scene)
+        target = PrimarySampleSpace(scene) if technique == "path" else MultiplexedBDPT(scene, max_depth=max_depth)
         throughput[scene_key] = (target.paths_per_second(), native_paths_per_second(scene, max_depth=max_depth))
         for method in methods:
             pss_target = target
+            if method in GRADIENT_METHODS and technique == "bdpt":
+                skipped[(scene_key, method)] = "needs gradients, which multiplexed BDPT does not offer"
+                say(f"{scene_key} {method}: skipped (no gradients with BDPT)")
+                continue
             if method in GRADIENT_METHODS:
                 try:
                     pss_target = PrimarySampleSpace(scene, russian_roulette=False)
@@ -196,6 +215,7 @@ def compare_renderers(
     comparison = RenderComparison(
         tuple(Path(s).stem for s in scenes), tuple(methods), float(seconds), realisations, tuple(resolution), max_depth,
         references, runs, throughput, skipped, {"lanes": lanes, "tour_length": tour_length, "p_large": p_large},
+        technique=technique,
     )
     if out_dir is not None:
         write_comparison(comparison, Path(out_dir))
@@ -218,7 +238,11 @@ def markdown(comparison: RenderComparison) -> str:
         f"renders for {c.seconds:g} s (compilation excluded), {c.realisations} independent realisation(s). Errors "
         "against a cached high-spp reference of Mitsuba's `path` integrator; relative MSE uses eps = 0.01. "
         "Metropolis Restore then finishes the tours still open (its seconds include that), so the ratios "
-        "compare relative MSE x seconds (inverse efficiency).",
+        "compare relative MSE x seconds (inverse efficiency). "
+        + (
+            "The PSS methods run on multiplexed BDPT (small steps keep the depth and strategy: pssmlt is MMLT)."
+            if c.technique == "bdpt" else "The PSS methods run on the path-tracing target."
+        ),
         "",
         "Settings: " + ", ".join(f"{k} {v:g}" for k, v in c.settings.items()) + ".",
         "",

@@ -10,9 +10,9 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float, Int, PRNGKeyArray
 
 from .._point import Point
-from ..local import AbstractTorusMutation, KelemenMutation, TorusMetropolis
+from ..local import AbstractTorusMutation, KelemenMutation
 from ._film import empty_film, splat
-from ._pss import check_target, empty_points, evaluate_points, luminance
+from ._pss import check_target, contributions, empty_points, evaluate_points, luminance, pixels, small_step
 from ._renderer import AbstractRenderer, check_count, check_lanes, ratio
 
 
@@ -101,7 +101,7 @@ class ERPT(AbstractRenderer):
     def init(self, target, key: PRNGKeyArray, lanes: int) -> ERPTState:
         check_target(target)
         lanes = check_lanes(lanes)
-        point = empty_points(lanes, target.dim)
+        point = empty_points(target, lanes)
         i0, f0 = jnp.zeros((), jnp.int32), jnp.zeros((), jnp.float32)
         tally = ERPTTally(empty_film(target.num_pixels), i0, i0, i0, i0, f0)
         return ERPTState(point, ERPTParams(jnp.asarray(lanes, jnp.float32)), tally)
@@ -121,7 +121,7 @@ class ERPT(AbstractRenderer):
         owner = jnp.clip(jnp.searchsorted(cumulative, slots, side="right"), 0, b - 1)
         chains = jax.tree.map(lambda x: x[owner], seeds)
         weight = jnp.full((lanes,), energy / m, jnp.float32)
-        kernel = TorusMetropolis(self.mutation)
+        kernel = small_step(self.mutation, target)
 
         def mutate(i, carry):
             chains, film, accepted = carry
@@ -130,7 +130,7 @@ class ERPT(AbstractRenderer):
             candidate = evaluate_points(target, moves)
             accept_one = lambda k, p, q: kernel.accept(k, p, q, None)  # noqa: E731
             chains, info = jax.vmap(accept_one)(jax.random.split(k_accept, lanes), chains, candidate)
-            film = splat(film, target.pixel_index(chains.position), weight, chains.aux)
+            film = splat(film, pixels(target, chains.position, chains.aux), weight, contributions(chains.aux))
             return chains, film, accepted + jnp.sum(info.accepted, dtype=jnp.int32)
 
         tally = state.tally

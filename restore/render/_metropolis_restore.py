@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from ..local import AbstractTorusMutation, TorusMetropolis
+from ._pss import small_step
 from ._restore_renderer import AbstractPSSRestore
 
 
@@ -10,8 +11,9 @@ class MetropolisRestore(AbstractPSSRestore):
     """Metropolis Restore (the Restore variant of PSSMLT's small step).
 
     Local dynamics: Metropolis on luminance with a symmetric small step on the torus
-    (`min(1, lum' / lum)`), embedded in continuous time at rate 1; regeneration: uniform
-    (PSSMLT's large step); kill rate `gamma = c / lum`. Each step evaluates the target
+    (`min(1, lum' / lum)`) that keeps the target's `frozen_coordinates` (on
+    `MultiplexedBDPT` the depth and strategy, as MMLT's small step), embedded in continuous
+    time at rate 1; regeneration: uniform on the whole torus (PSSMLT's large step); kill rate `gamma = c / lum`. Each step evaluates the target
     once per lane. The image is `W H c S_j / N` with `S_j` the film of
     `rgb / lum / (1 + gamma)` and `N` the number of tours, all run to completion (see
     `restore.render._restore_renderer` for the derivation). The sampler is the core's
@@ -49,3 +51,8 @@ class MetropolisRestore(AbstractPSSRestore):
         complete_tours: bool = True,
     ):
         self._setup(TorusMetropolis(mutation), tour_length, rate, n_bootstrap, start, complete_tours)
+
+    def local_kernel(self, target) -> TorusMetropolis:
+        """The small step, keeping the target's `frozen_coordinates` (on `MultiplexedBDPT`:
+        the depth and strategy, as in MMLT)."""
+        return small_step(self.kernel.mutation, target)  # type: ignore[attr-defined]

@@ -3,18 +3,22 @@
 A PSS target is an image-forming integrand on the torus `[0, 1)^D`: a point `u` is a
 vector of random numbers that a path tracer turns into a light path; its luminance is
 the (unnormalised) density the renderers sample and its RGB value is what they splat.
+Two optional attributes adapt the renderers to multiplexed targets
+(`targets.mitsuba.MultiplexedBDPT`): `frozen_coordinates` (small steps keep them) and
+`pixel_from_evaluation` (the tracer finds the pixel, and the splats take it from there).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Protocol, runtime_checkable
+from typing import NamedTuple, Protocol, runtime_checkable
 
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
 from .._point import Point, evaluate
+from ..local import AbstractTorusMutation, TorusMetropolis
 
 
 @runtime_checkable
@@ -25,6 +29,15 @@ class PSSTarget(Protocol):
         dim: `D`, the number of primary sample coordinates.
         resolution: `(W, H)` in pixels.
         num_pixels: `W * H`.
+
+    Optional attributes (read with `frozen_coordinates` and `pixel_from_evaluation`):
+        frozen_coordinates: how many leading coordinates small steps never move (default 0).
+            A multiplexed target picks the path's depth and strategy from them; large
+            steps and regenerations still draw every coordinate uniformly.
+        pixel_from_evaluation: `True` if the pixel of a point is found by tracing it (light
+            tracing lands anywhere on the film). The target then offers
+            `jax_evaluate_with_pixel(u) -> (luminance, rgb, pixel)`, the log density carries
+            the pixel in its aux, and every splat reads it there (one trace per point).
 
     The density is `p(u) = luminance(u)` on the torus; the image is
     `I_j = W H ∫ rgb(u) 1{pixel(u) = j} du = W H Z E_p[rgb / luminance 1{pixel = j}]`.
@@ -51,13 +64,41 @@ class PSSTarget(Protocol):
         ...
 
 
+class EvaluatedPixel(NamedTuple):
+    """The aux of `pss_logdensity` for a target with `pixel_from_evaluation`: the
+    contribution `rgb / lum` and the pixel the tracer found for the point."""
+
+    contribution: Float[Array, "*N 3"]
+    pixel: Int[Array, "*N"]
+
+
+def frozen_coordinates(target: object) -> int:
+    """The target's `frozen_coordinates` (0 if it has none)."""
+    return getattr(target, "frozen_coordinates", 0)
+
+
+def pixel_from_evaluation(target: object) -> bool:
+    """Whether the target's pixels come from its evaluation (`False` if it does not say)."""
+    return bool(getattr(target, "pixel_from_evaluation", False))
+
+
+def small_step(mutation: AbstractTorusMutation, target: object) -> TorusMetropolis:
+    """Metropolis with the small step `mutation`, never moving the target's frozen coordinates."""
+    return TorusMetropolis(mutation, frozen=frozen_coordinates(target))
+
+
 def check_target(target: object, *, needs_gradient: bool = False) -> None:
     """Raise a clear error if `target` does not provide the `PSSTarget` interface."""
     members = ("dim", "resolution", "num_pixels", "jax_evaluate", "pixel_index")
-    members += ("jax_evaluate_with_grad",) if needs_gradient else ()
+    members += ("jax_evaluate_with_pixel",) if pixel_from_evaluation(target) else ()
     missing = [m for m in members if not hasattr(target, m)]
     if missing:
         raise TypeError(f"{type(target).__name__} is not a PSS target: it lacks {', '.join(missing)}")
+    if needs_gradient and not hasattr(target, "jax_evaluate_with_grad"):
+        raise TypeError(
+            f"this renderer needs gradients of the luminance (jax_evaluate_with_grad), which "
+            f"{type(target).__name__} does not offer; use a renderer without gradients (e.g. MetropolisRestore)"
+        )
     dim, res = target.dim, target.resolution  # type: ignore[attr-defined]
     if isinstance(dim, bool) or not isinstance(dim, int) or dim < 2:
         raise ValueError(f"target.dim must be an integer >= 2 (two image coordinates), got {dim!r}")
@@ -65,6 +106,9 @@ def check_target(target: object, *, needs_gradient: bool = False) -> None:
         raise ValueError(f"target.resolution must be a pair of positive integers (W, H), got {res!r}")
     if target.num_pixels != res[0] * res[1]:  # type: ignore[attr-defined]
         raise ValueError(f"target.num_pixels is {target.num_pixels}, but W * H = {res[0] * res[1]}")  # type: ignore[attr-defined]
+    frozen = frozen_coordinates(target)
+    if isinstance(frozen, bool) or not isinstance(frozen, int) or not 0 <= frozen < dim:
+        raise ValueError(f"target.frozen_coordinates must be an integer in [0, dim), got {frozen!r}")
 
 
 def pss_logdensity(target: PSSTarget) -> Callable[[Array], tuple[Array, Array]]:
@@ -77,6 +121,10 @@ def pss_logdensity(target: PSSTarget) -> Callable[[Array], tuple[Array, Array]]:
     Under `vmap` the target's batch call is made once for all lanes. Differentiating the
     value calls `target.jax_evaluate_with_grad` (a custom VJP), so gradient-based kernels
     (`restore.local.TorusMALA`) also cost one batch call per step.
+
+    With `target.pixel_from_evaluation` the aux is an `EvaluatedPixel` (the contribution
+    and the traced pixel, from one `jax_evaluate_with_pixel` call) and the log density has
+    no gradient.
     """
 
     def clean(lum: Array, rgb: Array) -> tuple[Array, Array]:
@@ -86,6 +134,15 @@ def pss_logdensity(target: PSSTarget) -> Callable[[Array], tuple[Array, Array]]:
         contribution = jnp.where(good & jnp.isfinite(rgb), rgb / safe, 0.0)
         contribution = jnp.where(jnp.isfinite(contribution), contribution, 0.0)
         return jnp.where(good, jnp.log(safe), -jnp.inf), contribution
+
+    if pixel_from_evaluation(target):
+
+        def with_pixel(u: Array) -> tuple[Array, EvaluatedPixel]:
+            lum, rgb, pixel = target.jax_evaluate_with_pixel(jnp.asarray(u, jnp.float32)[None])  # type: ignore[attr-defined]
+            value, contribution = clean(lum[0], rgb[0])
+            return value, EvaluatedPixel(contribution, jnp.asarray(pixel[0], jnp.int32))
+
+        return with_pixel
 
     @jax.custom_vjp
     def logdensity(u: Array) -> tuple[Array, Array]:
@@ -106,7 +163,7 @@ def pss_logdensity(target: PSSTarget) -> Callable[[Array], tuple[Array, Array]]:
 
 def evaluate_points(target: PSSTarget, u: Float[Array, "N D"], with_grad: bool = False) -> Point:
     """Evaluate a batch of points (one batch call) as the core samplers do: a `Point` of arrays
-    with `aux = rgb / lum`, float32."""
+    with the aux of `pss_logdensity` (`rgb / lum`, or an `EvaluatedPixel`), float32."""
     logdensity = pss_logdensity(target)
     u = jnp.asarray(u, jnp.float32)
     return jax.vmap(lambda x: evaluate(logdensity, x, with_grad, has_aux=True)[0])(u)
@@ -117,9 +174,20 @@ def luminance(point: Point) -> Float[Array, "*N"]:
     return jnp.exp(point.logdensity)
 
 
-def empty_points(n: int, dim: int) -> Point:
-    """`n` placeholder points (zero positions and contributions, zero density) of a state
-    that is filled by the first step."""
-    return Point(
-        jnp.zeros((n, dim), jnp.float32), jnp.full((n,), -jnp.inf, jnp.float32), None, jnp.zeros((n, 3), jnp.float32)
-    )
+def contributions(aux: Array | EvaluatedPixel) -> Float[Array, "*N 3"]:
+    """The contributions `rgb / lum` held in aux of `pss_logdensity`."""
+    return aux.contribution if isinstance(aux, EvaluatedPixel) else aux
+
+
+def pixels(target: PSSTarget, position: Float[Array, "*N D"], aux: Array | EvaluatedPixel) -> Int[Array, "*N"]:
+    """The pixels to splat points at: the evaluated ones if the aux holds them, else
+    `target.pixel_index(position)`."""
+    return aux.pixel if isinstance(aux, EvaluatedPixel) else target.pixel_index(position)
+
+
+def empty_points(target: PSSTarget, n: int) -> Point:
+    """`n` placeholder points (zero positions, contributions and pixels, zero density) of a
+    state that is filled by the first step."""
+    contribution = jnp.zeros((n, 3), jnp.float32)
+    aux = EvaluatedPixel(contribution, jnp.zeros((n,), jnp.int32)) if pixel_from_evaluation(target) else contribution
+    return Point(jnp.zeros((n, target.dim), jnp.float32), jnp.full((n,), -jnp.inf, jnp.float32), None, aux)

@@ -10,9 +10,9 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float, Int, PRNGKeyArray
 
 from .._point import Point
-from ..local import AbstractTorusMutation, KelemenMutation, TorusMetropolis
+from ..local import AbstractTorusMutation, KelemenMutation
 from ._film import empty_film, splat
-from ._pss import check_target, evaluate_points, luminance
+from ._pss import check_target, contributions, evaluate_points, luminance, pixels, small_step
 from ._renderer import (
     AbstractRenderer,
     bootstrap_points,
@@ -57,7 +57,8 @@ class PSSMLTState(NamedTuple):
 class PSSMLT(AbstractRenderer):
     """Primary-sample-space Metropolis light transport, one Metropolis chain per lane.
 
-    Proposal: with probability `p_large` a uniform draw (large step), else the small step;
+    Proposal: with probability `p_large` a uniform draw (large step), else the small step
+    (which keeps the target's `frozen_coordinates`: on `MultiplexedBDPT` this is MMLT);
     both are symmetric, so the acceptance is `a = min(1, lum' / lum)`: the core's
     `restore.local.TorusMetropolis` kernel decides both. Each step
     evaluates the target once per lane and splats the current state with weight `1 - a`
@@ -135,7 +136,7 @@ class PSSMLT(AbstractRenderer):
         k_small, k_large, k_kind, k_accept = jax.random.split(key, 4)
         x, tally = state.point, state.tally
         n, d = x.position.shape
-        kernel = TorusMetropolis(self.mutation)
+        kernel = small_step(self.mutation, target)
         small = jax.vmap(lambda k, p: kernel.propose(k, p, None)[0])(jax.random.split(k_small, n), x)
         fresh = jax.random.uniform(k_large, (n * d,), jnp.float32).reshape(n, d)
         large = jax.random.uniform(k_kind, (n,), jnp.float32) < self.p_large
@@ -145,9 +146,9 @@ class PSSMLT(AbstractRenderer):
         both = lambda p, q: jnp.concatenate([p, q])  # noqa: E731
         film = splat(
             tally.film,
-            both(target.pixel_index(x.position), target.pixel_index(y.position)),
+            both(pixels(target, x.position, x.aux), pixels(target, y.position, y.aux)),
             both(1.0 - a, a),
-            both(x.aux, y.aux),
+            both(contributions(x.aux), contributions(y.aux)),
         )
         tally = PSSMLTTally(
             film=film,

@@ -74,7 +74,7 @@ from .._speculation import speculative_steps
 from ..local import AbstractLocalKernel
 from ..regeneration import AbstractRegeneration, UniformTorus
 from ._film import empty_film, splat
-from ._pss import check_target, luminance, pss_logdensity
+from ._pss import check_target, contributions, frozen_coordinates, luminance, pixels, pss_logdensity
 from ._renderer import (
     AbstractRenderer,
     bootstrap_points,
@@ -157,7 +157,10 @@ def _add_events(tally, target, info, counted, log_kill_rate, moves, starting, ev
     kill = jnp.exp(kill_log_probability(log_kill_rate, jnp.zeros((), jnp.float32)))  # local rate 1
     killed = info.regenerated & counted
     return RestoreTally(
-        film=splat(tally.film, target.pixel_index(info.position), jnp.where(counted, info.expected_holding_time, 0.0), info.aux),
+        film=splat(
+            tally.film, pixels(target, info.position, info.aux), jnp.where(counted, info.expected_holding_time, 0.0),
+            contributions(info.aux),
+        ),
         kill_probability=tally.kill_probability + jnp.sum(jnp.where(counted, kill, 0.0)),
         kills=tally.kills + jnp.sum(killed, dtype=jnp.int32),
         restarts=tally.restarts + jnp.sum(killed & starting, dtype=jnp.int32),
@@ -238,14 +241,26 @@ class AbstractPSSRestore(AbstractRenderer):
         """The regeneration distribution: uniform on the torus, in float32."""
         return UniformTorus(target.dim, jnp.float32)
 
+    def local_kernel(self, target) -> AbstractLocalKernel:
+        """The local kernel on `target`: `kernel`, which must keep the target's frozen
+        coordinates (a concrete renderer that can freeze them overrides this)."""
+        if frozen_coordinates(target):
+            raise ValueError(
+                f"{type(self).__name__} moves every coordinate, but {type(target).__name__} declares "
+                f"frozen_coordinates = {frozen_coordinates(target)} that local moves must keep"
+            )
+        return self.kernel
+
     def sampler(self, target, log_rate: Float[Array, ""]) -> JumpRestore:
         """The core sampler this renderer runs on `target`, with `log c = log_rate`."""
         return JumpRestore(
-            pss_logdensity(target), self.kernel, self.regeneration(target), log_rate=log_rate, has_aux=True
+            pss_logdensity(target), self.local_kernel(target), self.regeneration(target), log_rate=log_rate,
+            has_aux=True,
         )
 
     def init(self, target, key: PRNGKeyArray, lanes: int) -> RestoreRenderState:
         check_target(target, needs_gradient=self.uses_gradient)
+        self.local_kernel(target)  # refuses a target whose frozen coordinates the kernel would move
         lanes = check_lanes(lanes)
         k_boot, k_pick, k_start = jax.random.split(key, 3)
         z = z_err = jnp.asarray(jnp.nan, jnp.float32)

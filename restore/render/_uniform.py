@@ -10,7 +10,7 @@ from jaxtyping import Array, Float, Int, PRNGKeyArray
 
 from .._point import Point
 from ._film import empty_film, splat
-from ._pss import check_target, empty_points, evaluate_points, luminance
+from ._pss import check_target, contributions, empty_points, evaluate_points, luminance, pixels
 from ._renderer import AbstractRenderer, check_lanes, ratio
 
 
@@ -50,7 +50,7 @@ class UniformSampler(AbstractRenderer):
     def init(self, target, key: PRNGKeyArray, lanes: int) -> UniformState:
         check_target(target)
         lanes = check_lanes(lanes)
-        point = empty_points(lanes, target.dim)
+        point = empty_points(target, lanes)
         i0 = jnp.zeros((), jnp.int32)
         tally = UniformTally(empty_film(target.num_pixels), i0, i0)
         return UniformState(point, UniformParams(jnp.asarray(lanes, jnp.float32)), tally)
@@ -60,7 +60,7 @@ class UniformSampler(AbstractRenderer):
         point = evaluate_points(target, jax.random.uniform(key, (n * target.dim,), jnp.float32).reshape(n, target.dim))
         lum, tally = luminance(point), state.tally
         tally = UniformTally(
-            film=splat(tally.film, target.pixel_index(point.position), lum, point.aux),  # lum * rgb / lum = rgb
+            film=splat(tally.film, pixels(target, point.position, point.aux), lum, contributions(point.aux)),  # = rgb
             samples=tally.samples + jnp.int32(n),
             black=tally.black + jnp.sum(lum == 0, dtype=jnp.int32),
         )

@@ -4,13 +4,15 @@
 `[0, 1)^D`, where `f(u)` is the contribution of the camera path that Mitsuba's `path`
 integrator would trace from the random numbers `u`. It offers batch evaluation with
 gradients (NumPy), a `jax.pure_callback` bridge usable under `jit`/`vmap`, and the plain
-uniform Monte Carlo image. `_native` renders with Mitsuba's own integrator for equal-time
+uniform Monte Carlo image. `MultiplexedBDPT` is the same for multiplexed bidirectional
+path tracing (depth and strategy chosen by the first coordinate). `_native` renders with Mitsuba's own integrator for equal-time
 baselines and cached references; `_scenes` builds the test scenes in code.
 
 Importing this package does not import Mitsuba: it is loaded (with a working libLLVM,
 see `load_mitsuba`) on first use. Install it with `pip install 'restore-mcmc[mitsuba]'`.
 """
 
+from ._bdpt_target import MultiplexedBDPT as MultiplexedBDPT
 from ._llvm import LLVMNotFoundError as LLVMNotFoundError
 from ._llvm import find_libllvm as find_libllvm
 from ._llvm import load_mitsuba as load_mitsuba

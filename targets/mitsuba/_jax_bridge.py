@@ -67,6 +67,31 @@ def values_callback(evaluate: Callable[[np.ndarray], Any], dim: int) -> Callable
     return call
 
 
+def values_pixel_callback(evaluate: Callable[[np.ndarray], Any], dim: int) -> Callable[[jax.Array], tuple]:
+    """`u (..., D) -> (luminance, rgb (..., 3), pixel (...) int32)` for targets whose pixel the tracer finds."""
+
+    def host(u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        batch = np.asarray(u).shape[:-1]
+        with TRACER_LOCK:
+            samples = evaluate(np.asarray(u).reshape(-1, dim))
+        return (
+            samples.luminance.reshape(batch),
+            samples.rgb.reshape(*batch, 3),
+            samples.pixel.astype(np.int32).reshape(batch),
+        )
+
+    def call(u: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
+        u = _check_points(u, dim)
+        shapes = (
+            jax.ShapeDtypeStruct(u.shape[:-1], jnp.float32),
+            jax.ShapeDtypeStruct((*u.shape[:-1], 3), jnp.float32),
+            jax.ShapeDtypeStruct(u.shape[:-1], jnp.int32),
+        )
+        return jax.pure_callback(host, shapes, u, vmap_method="expand_dims")
+
+    return call
+
+
 def values_and_grad_callback(
     evaluate_with_grad: Callable[[np.ndarray], Any], dim: int
 ) -> Callable[[jax.Array], tuple]:

@@ -125,6 +125,23 @@ def test_render_compare_writes_the_table_figures_and_ratios(tmp_path, monkeypatc
     assert len(rows) == 1 + 3 * 2
 
 
+def test_render_compare_on_multiplexed_bdpt(tmp_path, monkeypatch):
+    """`--technique bdpt`: Restore and MMLT on MultiplexedBDPT beside Mitsuba's path tracer;
+    MALA Restore is skipped with the reason (no gradients)."""
+    monkeypatch.setenv("RESTORE_CACHE_DIR", str(tmp_path / "cache"))
+    out = tmp_path / "results"
+    result = _invoke("render-compare", "--scenes", "cornell_box", "--methods", "path,pssmlt,restore,mala-restore",
+                     "--technique", "bdpt", "--time", 0.3, "--realisations", 1, "--resolution", 8, "--max-depth", 2,
+                     "--lanes", 256, "--reference-spp", 64, "--no-progress", "--out", out)
+    assert result.exit_code == 0, result.output
+    text = (out / "results.md").read_text()
+    assert "Metropolis Restore / MMLT" in text and "multiplexed BDPT" in text
+    assert "skipped: needs gradients" in text
+    assert len((out / "results.csv").read_text().splitlines()) == 1 + 3
+    refused = _invoke("render-compare", "--technique", "vcm", "--out", out)
+    assert refused.exit_code == 2 and "unknown technique 'vcm'" in refused.output, refused.output
+
+
 def test_render_checkpoint_resumes_to_the_same_image(tmp_path):
     from restore._checkpoint import read_header
     from restore.render._images import load_image
