@@ -1,7 +1,9 @@
 """Speed of the core against BlackJAX RMH, side by side in one run.
 
 For each set-up, on the same target with the same number of lanes and steps and the same
-random-walk scale, it measures (median of repeats; compilation excluded from the rates):
+random-walk scale, it measures (compilation excluded from the rates; the contenders run
+round-robin, and each ratio is the median over rounds of the same round's ratio, so a
+load change on a shared machine hits all of them alike):
 
 - BlackJAX RMH: `lax.scan` over `vmap(step)`, keeping a running sum of positions (the
   yardstick: the cheapest useful MCMC loop);
@@ -16,7 +18,7 @@ and prints steps per second, the ratio to BlackJAX, and the time to the first re
 one call (tracing, compilation, the pilot) against BlackJAX's compilation time. BlackJAX
 runs first in each set-up, so the process's one-time start-up is charged to it.
 
-Usage: python examples/benchmark_speed.py [--lanes 512] [--steps 1500] [--dim 10] [--repeats 3]
+Usage: python examples/benchmark_speed.py [--lanes 512] [--steps 1500] [--dim 10] [--rounds 5]
 """
 
 from __future__ import annotations
@@ -24,6 +26,8 @@ from __future__ import annotations
 import argparse
 import platform
 import time
+from collections.abc import Callable
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -39,8 +43,15 @@ from restore.regeneration import Gaussian, laplace_mixture  # noqa: E402
 from targets.analytic import well_separated_gaussian_mixture  # noqa: E402
 
 
-def blackjax_rmh(logdensity, scale: float, x0, steps: int, repeats: int) -> tuple[float, float]:
-    """Steps per second and compile seconds of BlackJAX's Gaussian random-walk Metropolis."""
+class Contender(NamedTuple):
+    """A prepared (compiled) run: `once(i)` runs it with key `i` and returns its seconds."""
+
+    once: Callable[[int], float]
+    compile_seconds: float
+
+
+def blackjax_rmh(logdensity, scale: float, x0, steps: int) -> Contender:
+    """BlackJAX's Gaussian random-walk Metropolis in a scan, with a running sum of positions."""
     lanes, dim = x0.shape
     rmh = blackjax.additive_step_random_walk.normal_random_walk(logdensity, scale * jnp.ones(dim))
 
@@ -53,11 +64,11 @@ def blackjax_rmh(logdensity, scale: float, x0, steps: int, repeats: int) -> tupl
         start = (jax.vmap(rmh.init)(x0), jnp.zeros_like(x0))
         return jax.lax.scan(body, start, jax.random.split(key, steps))[0][1]
 
-    return _time_compiled(run, x0, lanes * steps, repeats)
+    return _compiled(run, x0)
 
 
-def bare_restore_step(sampler, lanes: int, steps: int, repeats: int) -> tuple[float, float]:
-    """Steps per second of `JumpRestore.step_lanes` in a scan, with a Rao-Blackwellised running sum."""
+def bare_restore_step(sampler, lanes: int, steps: int) -> Contender:
+    """`JumpRestore.step_lanes` in a scan, with a Rao-Blackwellised running sum."""
     states = jax.vmap(sampler.init)(jax.random.split(jax.random.key(0), lanes))
 
     def run(key, states):
@@ -69,41 +80,51 @@ def bare_restore_step(sampler, lanes: int, steps: int, repeats: int) -> tuple[fl
         start = (states, jnp.zeros_like(states.position))
         return jax.lax.scan(body, start, jax.random.split(key, steps))[0][1]
 
-    return _time_compiled(run, states, lanes * steps, repeats)
+    return _compiled(run, states)
 
 
-def _time_compiled(run, argument, work: int, repeats: int) -> tuple[float, float]:
+def _compiled(run, argument) -> Contender:
     start = time.perf_counter()
     compiled = jax.jit(run).lower(jax.random.key(0), argument).compile()
     compile_seconds = time.perf_counter() - start
     jax.block_until_ready(compiled(jax.random.key(0), argument))
-    times = []
-    for i in range(repeats):
+
+    def once(i: int) -> float:
         start = time.perf_counter()
-        jax.block_until_ready(compiled(jax.random.key(i + 1), argument))
-        times.append(time.perf_counter() - start)
-    return work / float(np.median(times)), compile_seconds
+        jax.block_until_ready(compiled(jax.random.key(i), argument))
+        return time.perf_counter() - start
+
+    return Contender(once, compile_seconds)
 
 
-def restore_sample(sampler, lanes: int, steps: int, repeats: int) -> tuple[float, float]:
-    """Steps per second of `restore.sample`'s run (median of repeats), and the first call's extra
-    seconds: its whole duration minus the median whole duration of the later calls."""
+def restore_sample(sampler, lanes: int, steps: int) -> Contender:
+    """`restore.sample`'s run time (`wall_time`), and its first call's extra seconds: the whole
+    first call minus the whole second one (tracing, compilation, the pilot)."""
     kwargs = dict(num_lanes=lanes, num_steps=steps, progress=False, max_draws=0, num_chunks=1)
-    calls, runs = [], []
-    for i in range(repeats + 1):
+    calls = []
+    for i in range(2):
         start = time.perf_counter()
-        result = restore.sample(sampler, jax.random.key(i), **kwargs)
+        restore.sample(sampler, jax.random.key(i), **kwargs)
         calls.append(time.perf_counter() - start)
-        runs.append(result.wall_time)
-    return lanes * steps / float(np.median(runs[1:])), calls[0] - float(np.median(calls[1:]))
+    return Contender(lambda i: restore.sample(sampler, jax.random.key(i), **kwargs).wall_time, calls[0] - calls[1])
 
 
-def report(name: str, rates: dict[str, tuple[float, float]]) -> None:
-    base_rate, base_compile = rates["BlackJAX RMH"]
+def report(name: str, contenders: dict[str, Contender], work: int, rounds: int) -> None:
+    """Time the contenders round-robin, `rounds` times each, so that the machine's load changes
+    hit all of them alike; the ratios are medians over rounds of same-round ratios."""
+    times = {label: [] for label in contenders}
+    for r in range(rounds):
+        for label, contender in contenders.items():
+            times[label].append(contender.once(r + 2))
+    base = np.asarray(times["BlackJAX RMH"])
+    base_compile = contenders["BlackJAX RMH"].compile_seconds
     print(f"\n{name}")
     print(f"{'':34s} {'M steps/s':>10s} {'/ BlackJAX':>11s} {'compile s':>10s} {'/ BlackJAX':>11s}")
-    for label, (rate, seconds) in rates.items():
-        print(f"{label:34s} {rate / 1e6:10.3f} {rate / base_rate:11.2f} {seconds:10.2f} {seconds / base_compile:11.2f}")
+    for label, contender in contenders.items():
+        seconds = np.asarray(times[label])
+        rate, ratio = work / float(np.median(seconds)), float(np.median(base / seconds))
+        compile_seconds = contender.compile_seconds
+        print(f"{label:34s} {rate / 1e6:10.3f} {ratio:11.2f} {compile_seconds:10.2f} {compile_seconds / base_compile:11.2f}")
 
 
 def main() -> None:
@@ -111,9 +132,9 @@ def main() -> None:
     parser.add_argument("--lanes", type=int, default=512)
     parser.add_argument("--steps", type=int, default=1500)
     parser.add_argument("--dim", type=int, default=10)
-    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--rounds", type=int, default=5)
     args = parser.parse_args()
-    lanes, steps, dim, repeats = args.lanes, args.steps, args.dim, args.repeats
+    lanes, steps, dim, rounds = args.lanes, args.steps, args.dim, args.rounds
     print(f"machine: {platform.processor() or platform.machine()}, {jax.device_count()} {jax.default_backend()} device(s), jax {jax.__version__}")
     print(f"{lanes} lanes x {steps} steps, {dim}-d, float64; compile s: BlackJAX's jit compilation, "
           "restore.sample's first call minus its run time (tracing, compilation, pilot)")
@@ -128,13 +149,15 @@ def main() -> None:
     report(
         "1. standard normal target, Gaussian(0, 2.25 I) regeneration, RandomWalk(0.75), T = 10",
         {
-            "BlackJAX RMH": blackjax_rmh(normal, 0.75, x0, steps, repeats),
-            "JumpRestore step (no driver)": bare_restore_step(jump.calibrate(jax.random.key(9))[0], lanes, steps, repeats),
-            "restore.sample(JumpRestore)": restore_sample(jump, lanes, steps, repeats),
+            "BlackJAX RMH": blackjax_rmh(normal, 0.75, x0, steps),
+            "JumpRestore step (no driver)": bare_restore_step(jump.calibrate(jax.random.key(9))[0], lanes, steps),
+            "restore.sample(JumpRestore)": restore_sample(jump, lanes, steps),
             "restore.sample(MixtureMH)": restore_sample(
-                restore.MixtureMH(normal, local, gaussian, large_step_probability=0.1), lanes, steps, repeats
+                restore.MixtureMH(normal, local, gaussian, large_step_probability=0.1), lanes, steps
             ),
         },
+        lanes * steps,
+        rounds,
     )
 
     target = well_separated_gaussian_mixture(dim, 3, separation=8.0)
@@ -146,16 +169,15 @@ def main() -> None:
     report(
         f"2. the demo: 3-mode Gaussian mixture, Student-t Laplace mixture ({len(laplace.components)} components), T = 10",
         {
-            "BlackJAX RMH": blackjax_rmh(target.logdensity, scale, x0, steps, repeats),
-            "JumpRestore step (no driver)": bare_restore_step(demo.calibrate(jax.random.key(9))[0], lanes, steps, repeats),
-            "restore.sample(JumpRestore)": restore_sample(demo, lanes, steps, repeats),
+            "BlackJAX RMH": blackjax_rmh(target.logdensity, scale, x0, steps),
+            "JumpRestore step (no driver)": bare_restore_step(demo.calibrate(jax.random.key(9))[0], lanes, steps),
+            "restore.sample(JumpRestore)": restore_sample(demo, lanes, steps),
             "restore.sample(MixtureMH)": restore_sample(
-                restore.MixtureMH(target.logdensity, RandomWalk(scale), laplace, large_step_probability=0.1),
-                lanes,
-                steps,
-                repeats,
+                restore.MixtureMH(target.logdensity, RandomWalk(scale), laplace, large_step_probability=0.1), lanes, steps
             ),
         },
+        lanes * steps,
+        rounds,
     )
 
 
