@@ -42,6 +42,10 @@ from ._bdpt_walk import (
 )
 from ._path_tracer import pixel_of
 
+#: The fraction of the connecting edge, between the two ends offset off their surfaces,
+#: that the shadow ray leaves untested at its far end.
+SHADOW_TAIL = 1e-5
+
 __all__ = ["dimension", "make_bdpt_tracer", "trace_strategies"]
 
 
@@ -124,7 +128,16 @@ def trace_strategies(
     pdf_e_out = dr.select(to_camera, importance.x * dist2, bsdf_e.pdf(ctx, si_e, local_e, connect & through_camera))
     pdf_e_back = reverse_pdf(bsdf_e, ctx_adjoint, si_e, local_e, connect & (t >= 3))
 
-    shadow = end_l.si.spawn_ray_to(end_e_p)
+    # The shadow ray runs between the two ends, each first offset off its surface towards
+    # the other, and stops a hair (`SHADOW_TAIL`) short of the far one. Not `spawn_ray_to`:
+    # it offsets only the origin and stops a fraction `ShadowEpsilon` (~1e-3) of the edge
+    # short, so an occluder within millimetres of the camera end was missed, and light
+    # leaked through a thin wall onto the strips of floor and walls that meet it behind.
+    near = dr.select(to_camera, camera_p, si_e.spawn_ray(-d).o)
+    seg = si_l.spawn_ray(d).o - near
+    seg_len = dr.norm(seg)
+    shadow = mi.Ray3f(near, seg / dr.select(seg_len > 0, seg_len, 1.0))
+    shadow.maxt = seg_len * (1.0 - SHADOW_TAIL)
     visible = connect & ~scene.ray_test(shadow, connect)
     contribution = dr.select(visible, a_l * a_e, 0.0)
 
