@@ -82,6 +82,14 @@ class MultiplexedBDPT:
 
     Raises:
         UnsupportedSceneError: for a scene the bidirectional tracer cannot reproduce.
+
+    Validated against Mitsuba's `path` image (uniform points, per pixel, block and in
+    total) on the Cornell box, a glossy Cornell box, the glass-sphere caustic, a large
+    light and `door_gap`. Known defect: on the built-in `pool` (light reaching a diffuse
+    floor only through a refracting water surface) the image is about 8% too dark (16x16,
+    16 x 2048 samples per pixel: -7.8%, standard error 2.0%), with flat or smooth
+    normals alike; the cause is not found, so do not trust it on such
+    specular-diffuse-specular light paths.
     """
 
     pixel_from_evaluation = True
