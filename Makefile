@@ -33,4 +33,4 @@ bench: $(VENV)/.installed
 	$(BIN)/python examples/benchmark_general.py
 
 clean:
-	rm -rf $(VENV) restore-demo.png
+	rm -rf $(VENV) restore-demo.png .jax-cache

@@ -15,8 +15,29 @@ console = Console()
 
 
 @app.callback()
-def main() -> None:
+def main(
+    cache: bool = typer.Option(
+        True, help="Keep compiled programs on disk ($JAX_COMPILATION_CACHE_DIR, else ~/.cache/restore/xla), so that a "
+        "second run with the same settings loads them instead of compiling again."
+    ),
+) -> None:
     """Restore samplers in JAX."""
+    if cache:
+        _cache_compilations()
+
+
+def _cache_compilations() -> None:
+    """Turn on JAX's persistent compilation cache, in the user's cache folder unless JAX's own variable names one."""
+    import os
+
+    import jax
+
+    folder = os.environ.get("JAX_COMPILATION_CACHE_DIR") or str(
+        Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "restore" / "xla"
+    )
+    jax.config.update("jax_compilation_cache_dir", folder)
+    # Programs that compile in a fraction of a second are worth keeping too: a run compiles many.
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.1)
 
 
 @app.command()

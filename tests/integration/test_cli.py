@@ -17,3 +17,22 @@ def test_small_demo_prints_the_table_and_writes_the_plot(tmp_path):
     assert out.exit_code == 0, out.output
     assert "Mode weights" in out.output and "RMSE" in out.output and "wall time" in out.output
     assert png.stat().st_size > 10_000
+
+
+def test_compiled_programs_are_cached_in_the_user_cache_unless_turned_off(tmp_path, monkeypatch):
+    import jax
+
+    before = jax.config.jax_compilation_cache_dir
+    monkeypatch.delenv("JAX_COMPILATION_CACHE_DIR", raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    try:
+        jax.config.update("jax_compilation_cache_dir", None)
+        assert CliRunner().invoke(app, ["--no-cache", "demo", "--help"]).exit_code == 0
+        assert jax.config.jax_compilation_cache_dir is None
+        assert CliRunner().invoke(app, ["demo", "--help"]).exit_code == 0
+        assert jax.config.jax_compilation_cache_dir == str(tmp_path / "restore" / "xla")
+        monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", str(tmp_path / "mine"))
+        assert CliRunner().invoke(app, ["demo", "--help"]).exit_code == 0
+        assert jax.config.jax_compilation_cache_dir == str(tmp_path / "mine")
+    finally:
+        jax.config.update("jax_compilation_cache_dir", before)
