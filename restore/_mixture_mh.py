@@ -104,7 +104,7 @@ class MixtureMH(AbstractSampler):
 
         large, regen_keys = jax.vmap(decide)(keys, states)
         fresh = draw_where(self._fresh, large, slots, regen_keys, states.position)
-        return jax.vmap(self.step)(keys, states, fresh)
+        return jax.vmap(self.step)(keys, states, fresh, large)
 
     def _large(self, key: PRNGKeyArray, state: MixtureMHState) -> Array:
         return jax.random.uniform(key, dtype=state.logdensity.dtype) < self.large_step_probability
@@ -113,16 +113,22 @@ class MixtureMH(AbstractSampler):
         return self.regeneration.sample(key).astype(position.dtype)
 
     def step(
-        self, key: PRNGKeyArray, state: MixtureMHState, fresh: Array | None = None
+        self,
+        key: PRNGKeyArray,
+        state: MixtureMHState,
+        fresh: Array | None = None,
+        large: Array | None = None,
     ) -> tuple[MixtureMHState, StepInfo]:
         """One MH step: a large step with probability `q`, else a local move.
 
-        `fresh` is the large-step candidate, drawn beforehand from this step's key as the
-        step would draw it (`step_lanes` draws it for the lanes that take a large step only).
+        `fresh` (the large-step candidate) and `large` (whether this is a large step) may be
+        decided beforehand from this step's key, as the step would decide them: `step_lanes`
+        decides for all lanes at once and draws `fresh` only for the lanes that need it.
         """
         k_choice, k_propose, k_accept, k_regen = jax.random.split(key, 4)
         dtype = state.logdensity.dtype
-        large = self._large(k_choice, state)
+        if large is None:
+            large = self._large(k_choice, state)
 
         point = Point(state.position, state.logdensity, state.logdensity_grad)
         candidate, aux = self.local.propose(k_propose, point, self.logdensity)
