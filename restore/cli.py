@@ -36,8 +36,9 @@ def _cache_compilations() -> None:
         Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "restore" / "xla"
     )
     jax.config.update("jax_compilation_cache_dir", folder)
-    # Programs that compile in a fraction of a second are worth keeping too: a run compiles many.
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.1)
+    if "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS" not in os.environ:
+        # Programs that compile in a fraction of a second are worth keeping too: a run compiles many.
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.1)
 
 
 @app.command()
