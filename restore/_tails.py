@@ -117,7 +117,7 @@ def keep_largest(tails: TourTails, records: TourRecords) -> TourTails:
 
 
 # ---------------------------------------------------------------------------- after the run (numpy)
-def _largest(values: np.ndarray) -> np.ndarray:
+def largest_of_lanes(values: np.ndarray) -> np.ndarray:
     """The entries of per-lane top sets `(L, K)` (`-inf` unused) certain to be among the largest of all lanes.
 
     A lane whose set is full has no other value above its set's smallest one, so every
@@ -132,12 +132,12 @@ def _largest(values: np.ndarray) -> np.ndarray:
 
 def duration_k(tails: TourTails, num_tours: int) -> float:
     """`k_hat` of the tour durations."""
-    return pareto_k(_largest(tails.duration), num_tours)
+    return pareto_k(largest_of_lanes(tails.duration), num_tours)
 
 
 def importance_k(tails: TourTails, num_starts: int) -> float:
     """`k_hat` of the importance weights at tour starts."""
-    return pareto_k_log(_largest(tails.log_importance_weight), num_starts)
+    return pareto_k_log(largest_of_lanes(tails.log_importance_weight), num_starts)
 
 
 def residual_k(tails: TourTails, column: int, value: float, num_tours: int) -> float:
@@ -166,7 +166,7 @@ def residual_k(tails: TourTails, column: int, value: float, num_tours: int) -> f
     # Too few residuals are certain to be the largest: bound the tail instead. Since
     # |F - pi T| <= |F| + |pi| T, the residuals' tail is no heavier than the heavier of
     # the tails of |F_j| and T, each known exactly from its own set.
-    k_size = pareto_k(_largest(np.where(np.isfinite(t_big), np.abs(f_big), -np.inf)), num_tours)
+    k_size = pareto_k(largest_of_lanes(np.where(np.isfinite(t_big), np.abs(f_big), -np.inf)), num_tours)
     return max(k_size, duration_k(tails, num_tours))
 
 

@@ -9,7 +9,7 @@ import numpy as np
 
 from .._accumulators import HISTOGRAM_BINS, HISTOGRAM_RANGE
 from .._pareto import gpd_fit, tail_length
-from .._tails import _largest
+from .._tails import largest_of_lanes
 from ._axes import axes_or_new
 
 
@@ -64,7 +64,7 @@ def tour_tail(result) -> TourTail:
     # known from its upper edge on.
     edges = np.logspace(*HISTOGRAM_RANGE, HISTOGRAM_BINS + 1)[1:]
     survival = np.concatenate([np.cumsum(counts[::-1])[::-1][1:], [0.0]]) / max(counts.sum(), 1.0)
-    largest = np.sort(_largest(result.tails.duration))[::-1]
+    largest = np.sort(largest_of_lanes(result.tails.duration))[::-1]
     mean = float(np.sum(result.sums.sum_t)) / n
     threshold = k_hat = sigma = math.nan
     top = largest[: tail_length(n) + 1]

@@ -31,11 +31,14 @@ from ._metrics import l1, mape, mrse, mse, relative_mse, variance_across
 TECHNIQUES = ("path", "bdpt")
 
 CSV_COLUMNS = ("scene", "method", "realisation", "seconds", "evaluations", "l1", "mse", "relative_mse", "mrse", "mape")
+#: Renderer diagnostics kept per run (Metropolis Restore's; empty for the other methods).
+DIAGNOSTICS = ("finishing_seconds", "tour_k_hat", "effective_tours", "tours_completed")
 
 
 @dataclasses.dataclass
 class MethodRun:
-    """One render of one method on one scene, with its error curve `(seconds, relative MSE)`."""
+    """One render of one method on one scene, with its error curve `(seconds, relative MSE)` and
+    the renderer's diagnostics (`DIAGNOSTICS`, those it has)."""
 
     scene: str
     method: str
@@ -45,6 +48,7 @@ class MethodRun:
     evaluations: int
     metrics: dict[str, float]
     curve: list[tuple[float, float]]
+    diagnostics: dict[str, float] = dataclasses.field(default_factory=dict)
 
 
 @dataclasses.dataclass
@@ -196,6 +200,7 @@ def compare_renderers(
                     say(f"{scene_key} {method}: skipped ({error})")
                     continue
             for r in range(realisations):
+                diagnostics: dict[str, float] = {}
                 if method == "path":
                     image, spp, elapsed, curve = _native_run(scene, reference, seconds, max_depth, seed=r)
                     evaluations = spp * resolution[0] * resolution[1]
@@ -209,7 +214,12 @@ def compare_renderers(
                     shift = stamps[-1][0] - result.seconds if stamps else 0.0
                     curve = [(t - shift, e) for t, e in stamps]
                     image, elapsed, evaluations = result.image, result.seconds, result.evaluations
-                run = MethodRun(scene_key, method, r, image, elapsed, evaluations, _metrics(image, reference), curve)
+                    found = dict(result.statistics, finishing_seconds=result.finishing_seconds)
+                    if "tour_k_hat" in found:
+                        diagnostics = {k: float(found[k]) for k in DIAGNOSTICS}
+                run = MethodRun(
+                    scene_key, method, r, image, elapsed, evaluations, _metrics(image, reference), curve, diagnostics
+                )
                 runs.append(run)
                 say(f"{scene_key} {method} #{r}: {elapsed:.1f} s, {evaluations:,} paths, relative MSE {run.metrics['relative_mse']:.4g}")
     comparison = RenderComparison(
@@ -272,11 +282,28 @@ def markdown(comparison: RenderComparison) -> str:
                 f"| {method} | {np.mean([r.seconds for r in runs]):.1f} | {np.mean([r.evaluations for r in runs]):,.0f} | {_fmt(m('relative_mse'))} | {_fmt(m('mrse'))} | "
                 f"{_fmt(m('mape'))} | {_fmt(m('l1'))} | {_fmt(m('mse'))} | {_fmt(var)} |"
             )
+        lines += _tour_diagnostics(c, scene)
         if f"scene-{scene}" in c.files:
             lines += ["", f"![{scene}](scene-{scene}.png)"]
     lines += ["", "## Machine", "", "| | |", "|---|---|"]
     lines += [f"| {k} | {v} |" for k, v in machine_description().items()]
     return "\n".join(lines) + "\n"
+
+
+def _tour_diagnostics(c: RenderComparison, scene: str) -> list[str]:
+    """A sentence on Metropolis Restore's tours in `scene`: finishing time, tail shape and
+    effective number of tours, per realisation."""
+    runs = [r for r in c.runs if r.scene == scene and r.method == "restore" and r.diagnostics]
+    if not runs:
+        return []
+    d = lambda k, f: ", ".join(f.format(r.diagnostics[k]) for r in runs)  # noqa: E731
+    return [
+        "",
+        f"Metropolis Restore's tours, per realisation: finishing {d('finishing_seconds', '{:.1f}')} s after the "
+        f"budget; tail shape of the tour durations k_hat {d('tour_k_hat', '{:.2f}')} (above 0.7 a few long tours "
+        f"carry much of the light, and the render warns); effective tours {d('effective_tours', '{:,.0f}')} of "
+        f"{d('tours_completed', '{:,.0f}')}.",
+    ]
 
 
 def _crop_window(reference: np.ndarray) -> tuple[slice, slice]:
@@ -334,9 +361,13 @@ def write_comparison(comparison: RenderComparison, out: Path) -> dict[str, Path]
     files = {"csv": out / "results.csv"}
     text = io.StringIO()
     writer = csv.writer(text)
-    writer.writerow(CSV_COLUMNS)
+    writer.writerow(CSV_COLUMNS + DIAGNOSTICS)
     for r in comparison.runs:
-        writer.writerow([r.scene, r.method, r.realisation, f"{r.seconds:.3f}", r.evaluations] + [f"{r.metrics[k]:.6g}" for k in CSV_COLUMNS[5:]])
+        writer.writerow(
+            [r.scene, r.method, r.realisation, f"{r.seconds:.3f}", r.evaluations]
+            + [f"{r.metrics[k]:.6g}" for k in CSV_COLUMNS[5:]]
+            + [f"{r.diagnostics[k]:.6g}" if k in r.diagnostics else "" for k in DIAGNOSTICS]
+        )
     write_text(files["csv"], text.getvalue(), newline="")
     for scene in comparison.scenes:
         path = plot_scene(comparison, scene, out / f"scene-{scene}.png")

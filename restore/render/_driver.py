@@ -45,13 +45,15 @@ class RenderResult:
         compile_seconds: time spent compiling the jitted initialisation and chunk.
         steps: renderer steps taken per lane within the budget.
         lanes: number of lanes.
-        statistics: renderer diagnostics (acceptance rate, tours, `c`, `Z_hat`, ...).
+        statistics: renderer diagnostics (acceptance rate, tours, `c`, `Z_hat`, ...; Restore: the
+            tail shape `tour_k_hat` of its tour durations, with a warning above `TAIL_WARNING`).
         interrupted: the run was stopped by Ctrl-C (KeyboardInterrupt); the image holds
             every chunk finished before it.
         finishing_steps: steps taken after the budget to complete open work (Restore's
             open tours with `complete_tours`), on all lanes at first and then on the few
             lanes still open; their evaluations and time are included in `evaluations`
             and `seconds`.
+        finishing_seconds: the part of `seconds` spent finishing.
     """
 
     image: np.ndarray
@@ -63,6 +65,7 @@ class RenderResult:
     statistics: dict[str, float]
     interrupted: bool = False
     finishing_steps: int = 0
+    finishing_seconds: float = 0.0
 
     @property
     def evaluations_per_second(self) -> float:
@@ -124,7 +127,8 @@ def render(
     lanes, at least 64), shared among the open lanes, so a few long tours do not cost a
     full batch per step; Restore with a Metropolis small step runs its open tours by
     speculative steps there (`restore.speculative_steps`: several events of a tour per
-    evaluation batch). The finishing program is compiled ahead too. Finishing comes on top of the budget: its steps and time are in `finishing_steps`,
+    evaluation batch). The finishing program is compiled ahead too. Finishing comes
+    on top of the budget: its steps and time are in `finishing_steps`, `finishing_seconds`,
     `evaluations` and `seconds`.
 
     Arguments:
@@ -196,7 +200,7 @@ def render(
         "seconds": seconds,
     }
     state, totals, steps, chunks, spent = None, None, 0, 0, 0.0
-    finishing, finishing_evaluations, finished = 0, 0, False
+    finishing, finishing_evaluations, finished, finishing_seconds = 0, 0, False, 0.0
     if checkpoint is not None and resume and os.path.exists(checkpoint):  # checked before any compilation
         tally_like = jax.tree.map(lambda x: np.zeros(x.shape, host_tally_dtype(x)), state_shape.tally)
         (state, totals), header = load_checkpoint(checkpoint, (state_shape, tally_like), fingerprint)
@@ -204,6 +208,7 @@ def render(
         steps, chunks, spent = header["steps"], header["chunks"], header["seconds_spent"]
         finishing, finished = header.get("finishing_steps", 0), header.get("finished", False)
         finishing_evaluations = header.get("finishing_evaluations", 0)
+        finishing_seconds = header.get("finishing_seconds", 0.0)
     done = (max_steps is not None and steps >= max_steps) or (seconds is not None and spent >= seconds)
 
     t0 = time.perf_counter()
@@ -249,7 +254,7 @@ def render(
     def save(steps_done: int, elapsed: float) -> None:
         header = dict(
             fingerprint, steps=steps_done, chunks=chunks, seconds_spent=elapsed, finishing_steps=finishing,
-            finishing_evaluations=finishing_evaluations, finished=finished,
+            finishing_evaluations=finishing_evaluations, finished=finished, finishing_seconds=finishing_seconds,
         )
         save_checkpoint(checkpoint, (state, totals), header)
 
@@ -276,6 +281,7 @@ def render(
         )
         finishing, finishing_evaluations = finishing + taken, finishing_evaluations + taken_evaluations
         wall += seconds_taken
+        finishing_seconds += seconds_taken
         if not interrupted:
             finished = True
             update()
@@ -283,8 +289,11 @@ def render(
                 save(steps, wall)
     image = np.asarray(renderer.image(target, state, totals), np.float32)
     statistics = _as_floats(renderer.statistics(params, totals))
+    statistics.update(renderer.tail_statistics(state, totals))
     if renderer.finishes:
         statistics["finishing_steps"] = float(finishing)
+    if not interrupted:
+        renderer.warn_tail(statistics)
     return RenderResult(
         image=image,
         evaluations=init_cost + steps * step_cost + finishing_evaluations,
@@ -295,6 +304,7 @@ def render(
         statistics=statistics,
         interrupted=interrupted,
         finishing_steps=finishing,
+        finishing_seconds=finishing_seconds,
     )
 
 

@@ -133,6 +133,14 @@ class AbstractRenderer(eqx.Module):
     def statistics(self, params, tally) -> dict[str, Any]:
         """Renderer diagnostics (acceptance rate, tours, ...), from params and tally sums."""
 
+    def tail_statistics(self, state, tally) -> dict[str, float]:
+        """Diagnostics read off the state after a render (host-side; e.g. Restore's tail shape
+        of the tour durations), from the state and the host `tally` totals; none by default."""
+        return {}
+
+    def warn_tail(self, statistics: dict[str, float]) -> None:
+        """Warn if `statistics` show an image that a few samples dominate; nothing by default."""
+
     def check(self, params) -> None:
         """Raise `ValueError` if `init` found the target unusable (host-side, concrete params)."""
 

@@ -40,6 +40,18 @@ in the paper's authors' renderer. Finishing costs extra steps, reported as
 `finishing_steps`: with `L` about 1 most tours end within a few steps, but a tour in a
 region much brighter than `Z` lasts about `lum / c` steps.
 
+**Is the image dominated by a few tours?** A tour's splats carry in all its
+(Rao-Blackwellised) duration `T` in luminance (when the density is the luminance of the
+colour, each splat's contribution `rgb / lum` has luminance 1): the image's total light
+is `c sum T / N`. Its noise averages out like a mean of `N` i.i.d. tours only if `T` has
+a finite variance, and as fast only if no few tours hold most of `sum T`. Two
+diagnostics say so: the effective number of tours `(sum T)^2 / sum T^2` (Kish's, as for
+importance weights), and the Pareto shape `k_hat` of the durations, fitted to the largest
+of each lane's `TAIL_DEPTH` longest tours (`restore._pareto`, as for the core's
+estimates). `render` warns when `k_hat > TAIL_WARNING`: a few long tours in bright
+regions (the fireflies of path tracing; the caustic of the pool scene) then carry much
+of the light, and another render can differ by more than this one's noise suggests.
+
 **Start (open tours).** With `complete_tours=False` the run stops at the budget and
 the image uses `K` as above. The embedded jump chain (kill with probability `kappa`, else a local move) has
 the stationary law `pi_J ∝ lum + c`: `(p + c) kappa = c` regenerates uniformly and
@@ -61,16 +73,21 @@ memoryless tours; the start removes the rest.
 from __future__ import annotations
 
 import math
+import warnings
 from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
+from .._estimates import UnreliableEstimateWarning
 from .._jump_restore import JumpRestore
+from .._pareto import pareto_k
 from .._rate import kill_log_probability
 from .._restore import RestoreState
 from .._speculation import speculative_steps
+from .._tails import largest_of_lanes
 from ..local import AbstractLocalKernel
 from ..regeneration import AbstractRegeneration, UniformTorus
 from ._film import empty_film, splat
@@ -85,6 +102,12 @@ from ._renderer import (
     resample,
     xp_of,
 )
+
+#: Each lane keeps its this many longest tours (for the tail shape of the tour durations).
+TAIL_DEPTH = 8
+#: `render` warns when the tail shape `k_hat` of the tour durations is above this: PSIS's
+#: bound beyond which a mean of such terms is unreliable even with many of them.
+TAIL_WARNING = 0.7
 
 
 class RestoreParams(NamedTuple):
@@ -112,6 +135,8 @@ class RestoreTally(NamedTuple):
         film: `sum (1 / (1 + gamma)) rgb / lum` per pixel, `(P, 3)`.
         kill_probability: `K = sum kappa`, the Rao-Blackwellised number of finished tours.
         kills: tours finished (regenerations).
+        duration: the total (Rao-Blackwellised) duration `sum T` of the finished counted tours.
+        duration_sq: their `sum T^2`.
         restarts: tours started by a kill (the lanes' first tours not included).
         local_moves: local moves proposed.
         accepted: local moves accepted.
@@ -123,6 +148,8 @@ class RestoreTally(NamedTuple):
     film: Float[Array, "P 3"]
     kill_probability: Float[Array, ""]
     kills: Int[Array, ""]
+    duration: Float[Array, ""]
+    duration_sq: Float[Array, ""]
     restarts: Int[Array, ""]
     local_moves: Int[Array, ""]
     accepted: Int[Array, ""]
@@ -134,12 +161,15 @@ class RestoreTally(NamedTuple):
 class RestoreRenderState(NamedTuple):
     """State of a Restore render: the core sampler's lane states, each lane's local moves in its
     current tour and how many were accepted (the acceptance guess of speculative finishing),
-    which lanes are in a counted tour (`in_tour`), whether new tours still start (`starting`;
-    false once a complete-tours render finishes its open tours), constants and sums."""
+    its tour's duration so far and its `TAIL_DEPTH` longest finished tours (`-inf`: none yet),
+    which lanes are in a counted tour (`in_tour`), whether new tours still start (`starting`; false once
+    a complete-tours render finishes its open tours), constants and sums."""
 
     lanes: RestoreState
     tour_moves: Int[Array, " N"]
     tour_accepted: Int[Array, " N"]
+    tour_duration: Float[Array, " N"]
+    longest: Float[Array, "N K"]
     in_tour: Bool[Array, " N"]
     starting: Bool[Array, ""]
     params: RestoreParams
@@ -148,7 +178,7 @@ class RestoreRenderState(NamedTuple):
 
 def _zero_tally(num_pixels: int) -> RestoreTally:
     i0, f0 = jnp.zeros((), jnp.int32), jnp.zeros((), jnp.float32)
-    return RestoreTally(empty_film(num_pixels), f0, i0, i0, i0, i0, i0, f0, i0)
+    return RestoreTally(empty_film(num_pixels), f0, i0, f0, f0, i0, i0, i0, i0, f0, i0)
 
 
 def _add_events(tally, target, info, counted, log_kill_rate, moves, starting, events) -> RestoreTally:
@@ -163,12 +193,31 @@ def _add_events(tally, target, info, counted, log_kill_rate, moves, starting, ev
         ),
         kill_probability=tally.kill_probability + jnp.sum(jnp.where(counted, kill, 0.0)),
         kills=tally.kills + jnp.sum(killed, dtype=jnp.int32),
+        duration=tally.duration,  # added by `_end_tours` when they end
+        duration_sq=tally.duration_sq,
         restarts=tally.restarts + jnp.sum(killed & starting, dtype=jnp.int32),
         local_moves=tally.local_moves + jnp.sum(counted & ~info.regenerated, dtype=jnp.int32),
         accepted=tally.accepted + jnp.sum(counted & info.accepted, dtype=jnp.int32),
         completed_moves=tally.completed_moves + jnp.sum(jnp.where(killed, moves, 0), dtype=jnp.int32),
         completed_moves_sq=tally.completed_moves_sq + jnp.sum(jnp.where(killed, moves.astype(jnp.float32) ** 2, 0.0)),
         lane_steps=tally.lane_steps + events,
+    )
+
+
+def _end_tours(state, duration: Float[Array, " N"], ended: Bool[Array, " N"]) -> dict[str, Any]:
+    """The fields of `state` after the counted tours that `ended` (of `duration`, their
+    events up to the last one included) are added to the lanes' sets of longest tours and
+    to the duration sums; their lanes' running durations restart at 0."""
+    longest = state.longest
+    slot = jnp.argmin(longest, axis=1)
+    replace = ended & (duration > jnp.min(longest, axis=1))
+    hit = (jnp.arange(longest.shape[1])[None, :] == slot[:, None]) & replace[:, None]
+    finished = jnp.where(ended, duration, 0.0)
+    tally = state.tally._replace(
+        duration=state.tally.duration + jnp.sum(finished), duration_sq=state.tally.duration_sq + jnp.sum(finished**2)
+    )
+    return dict(
+        longest=jnp.where(hit, duration[:, None], longest), tour_duration=jnp.where(ended, 0.0, duration), tally=tally
     )
 
 
@@ -283,7 +332,9 @@ class AbstractPSSRestore(AbstractRenderer):
             states = jax.vmap(sampler.init)(keys, boot.position[index])
         zeros, ones = jnp.zeros(lanes, jnp.int32), jnp.ones(lanes, bool)
         return RestoreRenderState(
-            states, zeros, zeros, ones, jnp.asarray(True), params, _zero_tally(target.num_pixels)
+            states, zeros, zeros, jnp.zeros(lanes, jnp.float32),
+            jnp.full((lanes, TAIL_DEPTH), -jnp.inf, jnp.float32), ones, jnp.asarray(True), params,
+            _zero_tally(target.num_pixels),
         )
 
     def check(self, params: RestoreParams) -> None:
@@ -305,9 +356,11 @@ class AbstractPSSRestore(AbstractRenderer):
         in_tour = jnp.where(killed, state.starting, counted)  # a killed lane starts a counted tour only while starting
         tour_moves = jnp.where(info.regenerated, 0, moves + 1)
         tour_accepted = jnp.where(info.regenerated, 0, state.tour_accepted + info.accepted)
-        return state._replace(
+        duration = state.tour_duration + jnp.where(counted, info.expected_holding_time, 0.0)
+        state = state._replace(
             lanes=lanes, tour_moves=tour_moves, tour_accepted=tour_accepted, in_tour=in_tour, tally=tally
         )
+        return state._replace(**_end_tours(state, duration, killed))
 
     @property
     def speculates(self) -> bool:
@@ -336,9 +389,13 @@ class AbstractPSSRestore(AbstractRenderer):
         accepted = run.info.accepted.astype(jnp.int32)
         tour_accepted = state.tour_accepted.at[jnp.where(run.valid, run.lane, n)].add(accepted, mode="drop")
         tour_accepted = tour_accepted.at[jnp.where(run.last & run.info.regenerated, run.lane, n)].set(0, mode="drop")
-        return state._replace(
+        held = jnp.where(run.valid, run.info.expected_holding_time, 0.0)
+        duration = state.tour_duration.at[jnp.where(run.valid, run.lane, n)].add(held, mode="drop")
+        ended = state.in_tour & ~run.active
+        state = state._replace(
             lanes=run.states, tour_moves=tour_moves, tour_accepted=tour_accepted, in_tour=run.active, tally=tally
         )
+        return state._replace(**_end_tours(state, duration, ended))
 
     def _step_open_lanes(self, target, key: PRNGKeyArray, state: RestoreRenderState, slots: int) -> RestoreRenderState:
         """One step of the first `slots` open lanes (gathered, stepped, put back; closed lanes
@@ -347,7 +404,8 @@ class AbstractPSSRestore(AbstractRenderer):
         take = lambda x: x[index]  # noqa: E731
         part = state._replace(
             lanes=jax.tree.map(take, state.lanes), tour_moves=take(state.tour_moves),
-            tour_accepted=take(state.tour_accepted), in_tour=take(state.in_tour),
+            tour_accepted=take(state.tour_accepted), tour_duration=take(state.tour_duration),
+            longest=take(state.longest), in_tour=take(state.in_tour),
         )
         part = self.step(target, key, part)
         was_open = state.in_tour[index]  # lanes taken to fill the slots keep their state
@@ -360,6 +418,8 @@ class AbstractPSSRestore(AbstractRenderer):
             lanes=jax.tree.map(put, state.lanes, part.lanes),
             tour_moves=put(state.tour_moves, part.tour_moves),
             tour_accepted=put(state.tour_accepted, part.tour_accepted),
+            tour_duration=put(state.tour_duration, part.tour_duration),
+            longest=put(state.longest, part.longest),
             in_tour=put(state.in_tour, part.in_tour),
         )
 
@@ -398,6 +458,31 @@ class AbstractPSSRestore(AbstractRenderer):
         if self.complete_tours:
             return ratio(target.num_pixels * params.rate, tally.kills)
         return ratio(target.num_pixels * params.rate, tally.kill_probability)
+
+    def tail_statistics(self, state: RestoreRenderState, tally: RestoreTally) -> dict[str, float]:
+        """Of the finished tours' durations `T` (module docstring): `tour_k_hat`, their Pareto
+        shape (NaN with too few tours); `effective_tours`, `(sum T)^2 / sum T^2`;
+        `tour_duration_mean`, `sum T / N` (expected: `Z / c`); from the lanes' sets of
+        longest tours and the host totals."""
+        tours, total, squares = int(tally.kills), float(tally.duration), float(tally.duration_sq)
+        largest = largest_of_lanes(np.asarray(state.longest, np.float64))
+        return {
+            "tour_k_hat": pareto_k(largest, tours) if tours else math.nan,
+            "effective_tours": total**2 / squares if squares > 0 else math.nan,
+            "tour_duration_mean": total / tours if tours else math.nan,
+        }
+
+    def warn_tail(self, statistics: dict[str, float]) -> None:
+        """Warn when a few long tours dominate the image (`tour_k_hat > TAIL_WARNING`)."""
+        k = statistics.get("tour_k_hat", math.nan)
+        if k > TAIL_WARNING:
+            warnings.warn(
+                f"a few long tours dominate this image: the tail shape of the tour durations is k_hat = {k:.2f} "
+                f"> {TAIL_WARNING}, and the light rests on about {statistics['effective_tours']:,.0f} effective tours; "
+                "its noise does not average out like a mean of many tours, and another render can differ by more "
+                "than this one's noise suggests: render longer, and compare realisations",
+                UnreliableEstimateWarning, stacklevel=3,
+            )
 
     def statistics(self, params: RestoreParams, tally: RestoreTally) -> dict[str, Any]:
         """Tour and move statistics.

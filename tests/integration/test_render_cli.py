@@ -123,6 +123,11 @@ def test_render_compare_writes_the_table_figures_and_ratios(tmp_path, monkeypatc
     assert (out / "scene-cornell_box.png").stat().st_size > 10_000
     rows = (out / "results.csv").read_text().splitlines()
     assert len(rows) == 1 + 3 * 2
+    header = rows[0].split(",")
+    restore_rows = [dict(zip(header, row.split(","))) for row in rows[1:] if ",restore," in row]
+    assert len(restore_rows) == 2 and all(float(row["tours_completed"]) > 0 for row in restore_rows)
+    assert all(float(row["effective_tours"]) <= float(row["tours_completed"]) for row in restore_rows)
+    assert "Metropolis Restore's tours, per realisation" in text and "effective tours" in text
 
 
 def test_render_compare_on_multiplexed_bdpt(tmp_path, monkeypatch):
