@@ -13,6 +13,8 @@ only so it works on device arrays (inside `jit`) and on NumPy host totals alike.
 from __future__ import annotations
 
 import abc
+import math
+import warnings
 from typing import Any, ClassVar
 
 import equinox as eqx
@@ -21,9 +23,14 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int, PRNGKeyArray
 
+from .._estimates import UnreliableEstimateWarning
 from .._point import Point
 from ._film import film_image
 from ._pss import evaluate_points
+
+#: `warn_tail` warns when a renderer's tail shape is above this: PSIS's bound beyond which a
+#: mean of such terms is unreliable even with many of them.
+TAIL_WARNING = 0.7
 
 
 def xp_of(*arrays):
@@ -106,6 +113,8 @@ class AbstractRenderer(eqx.Module):
     """
 
     uses_gradient: ClassVar[bool] = False
+    #: the statistic of `tail_statistics` that `warn_tail` checks against `TAIL_WARNING` (none by default)
+    tail_statistic: ClassVar[str | None] = None
     #: whether `finish` has work to do after the budget (then `render` calls it)
     finishes: ClassVar[bool] = False
 
@@ -138,8 +147,16 @@ class AbstractRenderer(eqx.Module):
         of the tour durations), from the state and the host `tally` totals; none by default."""
         return {}
 
+    def tail_message(self, statistics: dict[str, float]) -> str:
+        """What `warn_tail` says: which estimate a few samples decide, and what to do."""
+        name = self.tail_statistic or ""
+        return f"a few samples decide this image: {name} = {statistics.get(name, math.nan):.2f} > {TAIL_WARNING}"
+
     def warn_tail(self, statistics: dict[str, float]) -> None:
-        """Warn if `statistics` show an image that a few samples dominate; nothing by default."""
+        """Warn (`UnreliableEstimateWarning`) when the renderer's `tail_statistic` is above
+        `TAIL_WARNING`: a few samples then decide the image."""
+        if self.tail_statistic is not None and statistics.get(self.tail_statistic, math.nan) > TAIL_WARNING:
+            warnings.warn(self.tail_message(statistics), UnreliableEstimateWarning, stacklevel=3)
 
     def check(self, params) -> None:
         """Raise `ValueError` if `init` found the target unusable (host-side, concrete params)."""

@@ -73,15 +73,13 @@ memoryless tours; the start removes the rest.
 from __future__ import annotations
 
 import math
-import warnings
-from typing import Any, NamedTuple
+from typing import Any, ClassVar, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
-from .._estimates import UnreliableEstimateWarning
 from .._jump_restore import JumpRestore
 from .._pareto import pareto_k
 from .._rate import kill_log_probability
@@ -93,6 +91,7 @@ from ..regeneration import AbstractRegeneration, UniformTorus
 from ._film import empty_film, splat
 from ._pss import check_target, contributions, frozen_coordinates, luminance, pixels, pss_logdensity
 from ._renderer import (
+    TAIL_WARNING,
     AbstractRenderer,
     bootstrap_points,
     bootstrap_size,
@@ -105,9 +104,6 @@ from ._renderer import (
 
 #: Each lane keeps its this many longest tours (for the tail shape of the tour durations).
 TAIL_DEPTH = 8
-#: `render` warns when the tail shape `k_hat` of the tour durations is above this: PSIS's
-#: bound beyond which a mean of such terms is unreliable even with many of them.
-TAIL_WARNING = 0.7
 
 
 class RestoreParams(NamedTuple):
@@ -236,6 +232,8 @@ class AbstractPSSRestore(AbstractRenderer):
         complete_tours: finish every tour started before the budget ends and divide by
             the number of tours (default); else stop at the budget and divide by `K`.
     """
+
+    tail_statistic: ClassVar[str | None] = "tour_k_hat"
 
     kernel: AbstractLocalKernel
     tour_length: float
@@ -472,17 +470,14 @@ class AbstractPSSRestore(AbstractRenderer):
             "tour_duration_mean": total / tours if tours else math.nan,
         }
 
-    def warn_tail(self, statistics: dict[str, float]) -> None:
-        """Warn when a few long tours dominate the image (`tour_k_hat > TAIL_WARNING`)."""
-        k = statistics.get("tour_k_hat", math.nan)
-        if k > TAIL_WARNING:
-            warnings.warn(
-                f"a few long tours dominate this image: the tail shape of the tour durations is k_hat = {k:.2f} "
-                f"> {TAIL_WARNING}, and the light rests on about {statistics['effective_tours']:,.0f} effective tours; "
-                "its noise does not average out like a mean of many tours, and another render can differ by more "
-                "than this one's noise suggests: render longer, and compare realisations",
-                UnreliableEstimateWarning, stacklevel=3,
-            )
+    def tail_message(self, statistics: dict[str, float]) -> str:
+        return (
+            "a few long tours dominate this image: the tail shape of the tour durations is k_hat = "
+            f"{statistics['tour_k_hat']:.2f} > {TAIL_WARNING}, and the light rests on about "
+            f"{statistics['effective_tours']:,.0f} effective tours; its noise does not average out like a mean of "
+            "many tours, and another render can differ by more than this one's noise suggests: render longer, and "
+            "compare realisations"
+        )
 
     def statistics(self, params: RestoreParams, tally: RestoreTally) -> dict[str, Any]:
         """Tour and move statistics.

@@ -114,6 +114,21 @@ def test_heavy_tailed_tours_are_flagged(a, heavy):
         assert k < 0.5 and not flagged, k
 
 
+@pytest.mark.parametrize("a", [0.3, 0.95])
+def test_pssmlt_reports_the_tail_of_the_luminance_behind_its_z_hat(a):
+    """Under uniform draws `lum = u_2^(-a)` has a Pareto tail of shape exactly `a`: PSSMLT's
+    bootstrap must find it, and warn that its `Z_hat` error is not to be trusted when `a`
+    leaves no finite variance."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = rr.render(PowerImage(a), rr.PSSMLT(n_bootstrap=65536), key=jax.random.key(1),
+                           evaluations=65536 + 256 * 4, lanes=256, progress=False)
+    flagged = [w for w in caught if issubclass(w.category, UnreliableEstimateWarning)]
+    k = result.statistics["z_k_hat"]
+    assert abs(k - a) < 0.15, k
+    assert len(flagged) == (a > 0.5) and all("Z_hat" in str(w.message) for w in flagged)
+
+
 def test_renderers_without_tours_report_no_tail():
     result = rr.render(TARGET, rr.PSSMLT(n_bootstrap=1024), key=jax.random.key(0), evaluations=1024 + 64 * 20,
                        lanes=64, progress=False)
