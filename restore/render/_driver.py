@@ -45,8 +45,9 @@ class RenderResult:
         compile_seconds: time spent compiling the jitted initialisation and chunk.
         steps: renderer steps taken per lane within the budget.
         lanes: number of lanes.
-        statistics: renderer diagnostics (acceptance rate, tours, `c`, `Z_hat`, ...; Restore: the
-            tail shape `tour_k_hat` of its tour durations, with a warning above `TAIL_WARNING`).
+        statistics: renderer diagnostics (acceptance rate, tours, `c`, `Z_hat`, ...), with the
+            renderer's tail shape (Restore: `tour_k_hat` of its tour durations; PSSMLT: `z_k_hat`
+            of the luminance behind `Z_hat`) and a warning above `TAIL_WARNING`.
         interrupted: the run was stopped by Ctrl-C (KeyboardInterrupt); the image holds
             every chunk finished before it.
         finishing_steps: steps taken after the budget to complete open work (Restore's
