@@ -53,7 +53,7 @@ from ._sharding import (
     to_host,
     wait_for_every_process,
 )
-from ._tails import TourTails, init_tails, keep_largest, tail_depth
+from ._tails import Pending, TourTails, add_records, init_tails, settle, tail_depth
 from ._tour_records import TourRecords, emptied, has_room, init_records, record, records_per_lane
 from ._trace import chunk_totals, run_trace
 from ._validation import check_integer, check_interval
@@ -217,12 +217,49 @@ def _replicate(tree, sharding: LaneSharding):
 
 class _Run(NamedTuple):
     """A run's progress: the device carry and the float64 host totals drained from it
-    (sums, tour histogram, and each lane's largest tours, merged from the tour records)."""
+    (sums, tour histogram, and each lane's largest tours, merged from the tour records;
+    the latest chunks' records may wait in `pending`, see `settled`)."""
 
     carry: _Carry
     sums: LaneSums | None
     histogram: tuple | None
     tails: TourTails
+    pending: Pending = Pending()
+
+    def settled(self) -> _Run:
+        """The run with its pending tour records merged into the top sets (what checkpoints and results hold)."""
+        return self._replace(tails=settle(self.tails, self.pending), pending=Pending())
+
+
+class _CarryShape(NamedTuple):
+    """The sizes of a run's carry beyond its states (hashable: a static argument)."""
+
+    num_lanes: int
+    size: int
+    depth: int
+    capacity: int
+    given_positions: bool
+    num_devices: int  # 0: not sharded
+
+
+def _start_carry(states, shape: _CarryShape) -> _Carry:
+    """The carry at the start of a run: zero sums, empty records and draws, step 0."""
+    dtype, (num_lanes, size, depth, capacity, given, devices) = states.logdensity.dtype, shape
+    histogram = init_histogram(dtype)
+    if devices:  # sharded: one partial histogram per device
+        histogram = jax.tree.map(lambda h: jnp.broadcast_to(h, (devices,) + h.shape), histogram)
+    return _Carry(
+        states=states,
+        sums=init_lane_sums(num_lanes, size, dtype, jnp.full((num_lanes,), given)),
+        histogram=histogram,
+        tours=init_records(num_lanes, size, depth, dtype),
+        draws=jnp.zeros((capacity, num_lanes, states.position.shape[-1]), dtype),
+        draw_weights=jnp.zeros((capacity, num_lanes), dtype),
+        step=jnp.zeros((), jnp.int32),
+    )
+
+
+_start_carry_jit = jax.jit(_start_carry, static_argnums=1)
 
 
 @eqx.filter_jit
@@ -461,24 +498,12 @@ def sample(
     has_tours = sampler.has_tours
     depth = records_per_lane(num_lanes, observe.size) if has_tours else 0
 
-    def start_carry(states):
-        histogram = init_histogram(dtype)
-        if sharding is not None:  # one partial histogram per device
-            histogram = jax.tree.map(lambda h: jnp.broadcast_to(h, (sharding.num_devices,) + h.shape), histogram)
-        return _Carry(
-            states=states,
-            sums=init_lane_sums(num_lanes, observe.size, dtype, jnp.full((num_lanes,), positions is not None)),
-            histogram=histogram,
-            tours=init_records(num_lanes, observe.size, depth, dtype),
-            draws=jnp.zeros((capacity, num_lanes, dim), dtype),
-            draw_weights=jnp.zeros((capacity, num_lanes), dtype),
-            step=jnp.zeros((), jnp.int32),
-        )
-
+    shape = _CarryShape(num_lanes, observe.size, depth, capacity, positions is not None, 0 if sharding is None else sharding.num_devices)
+    start_carry = functools.partial(_start_carry, shape=shape)
     lane_keys = _lane_keys(key_run, num_lanes, first_lane)
     layout = None
     if sharding is None:
-        carry = jax.jit(start_carry)(states)  # one compiled program rather than one per array
+        carry = _start_carry_jit(states, shape)  # one compiled program rather than one per array, kept across calls
     else:  # created in place on the devices, each holding its own lanes
         layout = _carry_shardings(jax.eval_shape(start_carry, states), sharding)
         carry = jax.jit(start_carry, in_shardings=(layout.states,), out_shardings=layout)(states)
@@ -522,10 +547,10 @@ def sample(
         advanced, steps_taken = _advance(sampler, observe, run.carry, *args)
         host_sums, host_histogram, records = to_host((advanced.sums, advanced.histogram, advanced.tours))  # waits for the chunk
         sums, histogram = drain_sums(run.sums, host_sums), drain_histogram(run.histogram, host_histogram)
-        tails = keep_largest(run.tails, records)  # the chunk's tours join each lane's largest
+        tails, pending = add_records(run.tails, run.pending, records)  # the tours join each lane's largest
         if not finishing:
             trace_rows.append(chunk_totals(host_sums, advanced.step, steps_taken))
-        return _Run(_restart(advanced, sharding), sums, histogram, tails), int(steps_taken)
+        return _Run(_restart(advanced, sharding), sums, histogram, tails, pending), int(steps_taken)
 
     trace_rows: list[tuple] = []  # per-chunk totals, from the sums each chunk drains anyway
     label = f"{type(sampler).__name__}: {num_lanes} lanes"
@@ -540,7 +565,7 @@ def sample(
 
     def save(_steps: int, wall_time: float) -> None:
         assert saver is not None
-        saver.save(run, done=int(run.carry.step), wall_time=wall_time)  # the committed run's own count
+        saver.save(run.settled(), done=int(run.carry.step), wall_time=wall_time)  # the committed run's own count
 
     outcome = drive(
         advance,
@@ -571,6 +596,7 @@ def sample(
             interrupted = True
             warnings.warn("interrupted while finishing the open tours; returning the result without them", stacklevel=2)
     if saver is not None and not interrupted and not finished:
+        run = run.settled()
         saver.save(
             run, done=done, wall_time=elapsed(), finished=True, finishing_steps=finishing_steps, unfinished=unfinished
         )
@@ -590,7 +616,7 @@ def sample(
         observables=observe,
         sums=run.sums,
         histogram=run.histogram,
-        tails=run.tails if has_tours else None,
+        tails=settle(run.tails, run.pending) if has_tours else None,
         draws=carry.draws[: min(stored, math.ceil(done / thin))],
         draw_weights=carry.draw_weights[: min(stored, math.ceil(done / thin))],
         final_state=carry.states,

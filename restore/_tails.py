@@ -1,6 +1,6 @@
 """The largest tours of every lane, and the tail shapes `k_hat` read off them.
 
-Each lane keeps (on the host, updated after every chunk from the chunk's tour records) its
+Each lane keeps (on the host, updated from the chunks' tour records) its
 `K` longest tours with their observable integrals `F`, for each observable component `j`
 its `K` tours of largest `|F_j|` with their durations, and its `K` largest importance
 weights `p(y) / q(y)` at tour starts. These are exact per-lane top sets, so after the run
@@ -76,37 +76,72 @@ def _top(values: np.ndarray, depth: int) -> np.ndarray:
     return np.argpartition(values, values.shape[-1] - depth, axis=-1)[..., -depth:]
 
 
-def keep_largest(tails: TourTails, records: TourRecords) -> TourTails:
-    """Each lane's top sets with the tours and starts of one chunk's records added.
+class Pending(NamedTuple):
+    """Tour records of recent chunks that have not yet joined the top sets.
 
-    Runs on the host, in NumPy, after every chunk: a partial sort there takes a few
-    milliseconds where XLA's `top_k` on the CPU sorts with a comparator call per
-    comparison (a few hundred milliseconds per chunk for 512 lanes).
+    Merging costs about the same for one chunk's few tours as for many chunks' worth (the
+    partial sort runs over the whole sets), so the records wait on the host until they
+    hold about as many slots per lane as the sets, then join in one merge. Unused slots
+    hold `-inf` (durations and weights), as in the sets.
     """
+
+    duration: tuple[np.ndarray, ...] = ()
+    integral: tuple[np.ndarray, ...] = ()
+    log_importance_weight: tuple[np.ndarray, ...] = ()
+
+    @property
+    def width(self) -> int:
+        return sum(a.shape[1] for a in self.duration)
+
+
+def _masked(records: TourRecords) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One chunk's records on the host, cut to the slots some lane used, unused slots `-inf`."""
+    count, starts = np.asarray(records.count), np.asarray(records.starts)
+    width = int(max(np.max(count, initial=0), np.max(starts, initial=0)))
+    slots = np.arange(width)[None, :]
+    duration = np.where(slots < count[:, None], np.asarray(records.duration)[:, :width], -np.inf)
+    weight = np.where(slots < starts[:, None], np.asarray(records.log_importance_weight)[:, :width], -np.inf)
+    return duration, np.array(np.asarray(records.integral)[:, :width]), np.where(np.isnan(weight), -np.inf, weight)
+
+
+def add_records(tails: TourTails, pending: Pending, records: TourRecords) -> tuple[TourTails, Pending]:
+    """The sets and pending records after one chunk's records: merged once `pending` is as wide as the sets."""
     depth = tails.duration.shape[1]
     if depth == 0:
-        return tails
-    records = TourRecords(*(np.asarray(a) for a in records))
-    slots = np.arange(records.duration.shape[1])
-    ended = slots[None, :] < records.count[:, None]
-    new_duration = np.where(ended, records.duration, -np.inf)
+        return tails, pending
+    duration, integral, weight = _masked(records)
+    pending = Pending(pending.duration + (duration,), pending.integral + (integral,), pending.log_importance_weight + (weight,))
+    if pending.width < depth:
+        return tails, pending
+    return settle(tails, pending), Pending()
 
+
+def settle(tails: TourTails, pending: Pending) -> TourTails:
+    """Each lane's top sets with the pending records merged in (the sets, when none are pending).
+
+    Runs on the host, in NumPy: a partial sort there takes a few milliseconds where XLA's
+    `top_k` on the CPU sorts with a comparator call per comparison (a few hundred
+    milliseconds per chunk for 512 lanes).
+    """
+    depth = tails.duration.shape[1]
+    if depth == 0 or pending.width == 0:
+        return tails
+    new_duration = np.concatenate(pending.duration, axis=1)
+    new_integrals = np.concatenate(pending.integral, axis=1)
     duration = np.concatenate([tails.duration, new_duration], axis=1)
     index = _top(duration, depth)
-    integrals = np.concatenate([tails.duration_integral, records.integral], axis=1)
+    integrals = np.concatenate([tails.duration_integral, new_integrals], axis=1)
     kept = np.take_along_axis(duration, index, axis=1)
     duration_integral = np.take_along_axis(integrals, index[:, :, None], axis=1)
 
-    new_integral = np.swapaxes(records.integral, 1, 2)  # (L, m, R)
+    new_integral = np.swapaxes(new_integrals, 1, 2)  # (L, m, R)
     integral = np.concatenate([tails.integral, new_integral], axis=2)
     shape = new_integral.shape
     integral_duration = np.concatenate([tails.integral_duration, np.broadcast_to(new_duration[:, None, :], shape)], axis=2)
     score = np.where(np.isfinite(integral_duration), np.abs(integral), -np.inf)
     by_size = _top(score, depth)
 
-    started = slots[None, :] < records.starts[:, None]
-    weights = np.concatenate([tails.log_importance_weight, np.where(started, records.log_importance_weight, -np.inf)], axis=1)
-    weights = np.where(np.isnan(weights), -np.inf, weights)
+    weights = np.concatenate([tails.log_importance_weight, *pending.log_importance_weight], axis=1)
     return TourTails(
         kept,
         duration_integral,

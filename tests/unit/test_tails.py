@@ -10,7 +10,8 @@ import pytest
 
 import restore
 from restore._pareto import k_hat_limit, pareto_k, pareto_k_log, tail_length
-from restore._tails import duration_k, importance_k, residual_k
+from restore._tails import Pending, _masked, add_records, duration_k, importance_k, init_tails, residual_k, settle
+from restore._tour_records import TourRecords
 from restore.regeneration import Gaussian
 
 
@@ -156,3 +157,46 @@ def test_lanes_subsets_and_merges_keep_their_diagnostics(good):
     merged = restore.merge_results([a, b])
     np.testing.assert_array_equal(merged.tails.duration, good.tails.duration)
     assert float(merged.normalising_constant().k_hat) == float(good.normalising_constant().k_hat)
+
+
+def test_records_merged_in_batches_give_the_exact_top_sets():
+    """Chunks of records wait on the host and join the sets in batches: every set equals the
+    brute-force top set of all the lane's tours, and a merge per chunk gives the same sets."""
+    lanes, size, depth, slots = 6, 2, 8, 5
+    rng = np.random.default_rng(3)
+    tails, pending, each = init_tails(lanes, size, depth), Pending(), init_tails(lanes, size, depth)
+    tours, weights = [[] for _ in range(lanes)], [[] for _ in range(lanes)]
+    merges = 0
+    for _ in range(9):
+        count, starts = rng.integers(0, slots + 1, lanes), rng.integers(0, slots + 1, lanes)
+        duration, weight = rng.exponential(size=(lanes, slots)), rng.normal(size=(lanes, slots))
+        integral = rng.normal(size=(lanes, slots, size)) * duration[..., None]
+        weight[0, 0] = np.nan  # a NaN weight never enters
+        records = TourRecords(duration, integral, count, weight, starts)
+        before = pending.width
+        tails, pending = add_records(tails, pending, records)
+        merges += pending.width < before + int(max(count.max(), starts.max()))
+        each = settle(each, Pending(*((a,) for a in _masked(records))))  # a merge per chunk
+        for lane in range(lanes):
+            tours[lane] += [(duration[lane, r], *integral[lane, r]) for r in range(count[lane])]
+            weights[lane] += [w for w in weight[lane, : starts[lane]] if not np.isnan(w)]
+    assert merges >= 2 and pending.width > 0  # merged in batches, and some records still wait
+    final = settle(tails, pending)
+    for lane in range(lanes):
+        rows = np.asarray(tours[lane])
+        longest = rows[np.argsort(rows[:, 0])[::-1][:depth]]
+        kept = np.isfinite(final.duration[lane])
+        np.testing.assert_array_equal(np.sort(final.duration[lane][kept]), np.sort(longest[:, 0]))
+        by_duration = dict(zip(final.duration[lane][kept], final.duration_integral[lane][kept]))
+        for row in longest:
+            np.testing.assert_array_equal(by_duration[row[0]], row[1:])
+        for j in range(size):
+            biggest = rows[np.argsort(np.abs(rows[:, 1 + j]))[::-1][:depth]]
+            used = np.isfinite(final.integral_duration[lane, j])
+            np.testing.assert_array_equal(np.sort(final.integral[lane, j][used]), np.sort(biggest[:, 1 + j]))
+            np.testing.assert_array_equal(np.sort(final.integral_duration[lane, j][used]), np.sort(biggest[:, 0]))
+        top_weights = np.sort(weights[lane])[::-1][:depth]
+        kept_weights = final.log_importance_weight[lane]
+        np.testing.assert_array_equal(np.sort(kept_weights[np.isfinite(kept_weights)]), np.sort(top_weights))
+    for a, b in zip(final, each):
+        np.testing.assert_array_equal(np.sort(a, axis=-1), np.sort(b, axis=-1))
