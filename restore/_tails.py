@@ -77,43 +77,63 @@ def _top(values: np.ndarray, depth: int) -> np.ndarray:
 
 
 class Pending(NamedTuple):
-    """Tour records of recent chunks that have not yet joined the top sets.
+    """Tour records of recent chunks that have not yet joined the top sets, packed per lane.
 
-    Merging costs about the same for one chunk's few tours as for many chunks' worth (the
-    partial sort runs over the whole sets), so the records wait on the host until they
-    hold about as many slots per lane as the sets, then join in one merge. Unused slots
-    hold `-inf` (durations and weights), as in the sets.
+    A merge costs about the same for the few tours of one chunk as for many chunks' worth
+    (the partial sort runs over the whole sets), so the records wait on the host, each
+    lane's packed after its earlier ones, and join the sets in one merge when some lane's
+    buffer would overflow (or when the sets are read). Unused slots hold `-inf`
+    (durations and weights), as in the sets. `Pending()` is the empty buffer.
+
+    Attributes:
+        duration: `(L, W)` durations of waiting tours.
+        integral: `(L, W, m)` their observable integrals.
+        tours: `(L,)` waiting tours per lane.
+        log_importance_weight: `(L, W)` waiting log importance weights of tour starts.
+        starts: `(L,)` waiting starts per lane.
     """
 
-    duration: tuple[np.ndarray, ...] = ()
-    integral: tuple[np.ndarray, ...] = ()
-    log_importance_weight: tuple[np.ndarray, ...] = ()
-
-    @property
-    def width(self) -> int:
-        return sum(a.shape[1] for a in self.duration)
+    duration: np.ndarray | None = None
+    integral: np.ndarray | None = None
+    tours: np.ndarray | None = None
+    log_importance_weight: np.ndarray | None = None
+    starts: np.ndarray | None = None
 
 
-def _masked(records: TourRecords) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """One chunk's records on the host, cut to the slots some lane used, unused slots `-inf`."""
-    count, starts = np.asarray(records.count), np.asarray(records.starts)
-    width = int(max(np.max(count, initial=0), np.max(starts, initial=0)))
-    slots = np.arange(width)[None, :]
-    duration = np.where(slots < count[:, None], np.asarray(records.duration)[:, :width], -np.inf)
-    weight = np.where(slots < starts[:, None], np.asarray(records.log_importance_weight)[:, :width], -np.inf)
-    return duration, np.array(np.asarray(records.integral)[:, :width]), np.where(np.isnan(weight), -np.inf, weight)
+def _packed(pending: Pending, lanes: int, size: int, width: int) -> Pending:
+    if pending.duration is not None:
+        return pending
+    used = np.zeros(lanes, np.int64)
+    return Pending(np.full((lanes, width), -np.inf), np.zeros((lanes, width, size)), used, np.full((lanes, width), -np.inf), used)
+
+
+def _append(buffer: np.ndarray, used: np.ndarray, values: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """A copy of `buffer` with each lane's first `count` `values` written after its `used` slots."""
+    lane, slot = np.nonzero(np.arange(int(np.max(count, initial=0)))[None, :] < count[:, None])
+    buffer = buffer.copy()  # the committed run keeps its own buffer (a chunk is counted all or nothing)
+    buffer[lane, used[lane] + slot] = values[lane, slot]
+    return buffer
 
 
 def add_records(tails: TourTails, pending: Pending, records: TourRecords) -> tuple[TourTails, Pending]:
-    """The sets and pending records after one chunk's records: merged once `pending` is as wide as the sets."""
+    """The sets and pending records after one chunk's records (merged first if a lane's buffer would overflow)."""
     depth = tails.duration.shape[1]
     if depth == 0:
         return tails, pending
-    duration, integral, weight = _masked(records)
-    pending = Pending(pending.duration + (duration,), pending.integral + (integral,), pending.log_importance_weight + (weight,))
-    if pending.width < depth:
-        return tails, pending
-    return settle(tails, pending), Pending()
+    count, starts = np.asarray(records.count, np.int64), np.asarray(records.starts, np.int64)
+    width = max(depth, records.capacity)  # one chunk's records always fit an empty buffer
+    if pending.duration is not None and (np.any(pending.tours + count > width) or np.any(pending.starts + starts > width)):
+        tails, pending = settle(tails, pending), Pending()
+    lanes, size = records.integral.shape[0], records.integral.shape[2]
+    pending = _packed(pending, lanes, size, width)
+    weights = np.asarray(records.log_importance_weight)
+    return tails, Pending(
+        _append(pending.duration, pending.tours, np.asarray(records.duration), count),
+        _append(pending.integral, pending.tours, np.asarray(records.integral), count),
+        pending.tours + count,
+        _append(pending.log_importance_weight, pending.starts, np.where(np.isnan(weights), -np.inf, weights), starts),
+        pending.starts + starts,
+    )
 
 
 def settle(tails: TourTails, pending: Pending) -> TourTails:
@@ -124,24 +144,25 @@ def settle(tails: TourTails, pending: Pending) -> TourTails:
     milliseconds per chunk for 512 lanes).
     """
     depth = tails.duration.shape[1]
-    if depth == 0 or pending.width == 0:
+    if depth == 0 or pending.duration is None:
         return tails
-    new_duration = np.concatenate(pending.duration, axis=1)
-    new_integrals = np.concatenate(pending.integral, axis=1)
+    assert pending.integral is not None and pending.log_importance_weight is not None
+    width = int(max(np.max(pending.tours), np.max(pending.starts)))  # the slots some lane used
+    new_duration, new_integrals = pending.duration[:, :width], pending.integral[:, :width]
     duration = np.concatenate([tails.duration, new_duration], axis=1)
     index = _top(duration, depth)
     integrals = np.concatenate([tails.duration_integral, new_integrals], axis=1)
     kept = np.take_along_axis(duration, index, axis=1)
     duration_integral = np.take_along_axis(integrals, index[:, :, None], axis=1)
 
-    new_integral = np.swapaxes(new_integrals, 1, 2)  # (L, m, R)
+    new_integral = np.swapaxes(new_integrals, 1, 2)  # (L, m, W)
     integral = np.concatenate([tails.integral, new_integral], axis=2)
     shape = new_integral.shape
     integral_duration = np.concatenate([tails.integral_duration, np.broadcast_to(new_duration[:, None, :], shape)], axis=2)
     score = np.where(np.isfinite(integral_duration), np.abs(integral), -np.inf)
     by_size = _top(score, depth)
 
-    weights = np.concatenate([tails.log_importance_weight, *pending.log_importance_weight], axis=1)
+    weights = np.concatenate([tails.log_importance_weight, pending.log_importance_weight[:, :width]], axis=1)
     return TourTails(
         kept,
         duration_integral,

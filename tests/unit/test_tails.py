@@ -10,7 +10,7 @@ import pytest
 
 import restore
 from restore._pareto import k_hat_limit, pareto_k, pareto_k_log, tail_length
-from restore._tails import Pending, _masked, add_records, duration_k, importance_k, init_tails, residual_k, settle
+from restore._tails import Pending, add_records, duration_k, importance_k, init_tails, residual_k, settle
 from restore._tour_records import TourRecords
 from restore.regeneration import Gaussian
 
@@ -173,14 +173,14 @@ def test_records_merged_in_batches_give_the_exact_top_sets():
         integral = rng.normal(size=(lanes, slots, size)) * duration[..., None]
         weight[0, 0] = np.nan  # a NaN weight never enters
         records = TourRecords(duration, integral, count, weight, starts)
-        before = pending.width
+        before = 0 if pending.tours is None else int(pending.tours.sum())
         tails, pending = add_records(tails, pending, records)
-        merges += pending.width < before + int(max(count.max(), starts.max()))
-        each = settle(each, Pending(*((a,) for a in _masked(records))))  # a merge per chunk
+        merges += int(pending.tours.sum()) < before + int(count.sum())
+        each = settle(*add_records(each, Pending(), records))  # a merge per chunk
         for lane in range(lanes):
             tours[lane] += [(duration[lane, r], *integral[lane, r]) for r in range(count[lane])]
             weights[lane] += [w for w in weight[lane, : starts[lane]] if not np.isnan(w)]
-    assert merges >= 2 and pending.width > 0  # merged in batches, and some records still wait
+    assert merges >= 2 and pending.tours.sum() > 0  # merged in batches, and some records still wait
     final = settle(tails, pending)
     for lane in range(lanes):
         rows = np.asarray(tours[lane])
