@@ -10,13 +10,13 @@ import math
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 from jaxtyping import Array, ArrayLike, Float
 
+from ._compile import jit
 from ._validation import as_float_array, check_integer, check_scalar_fn
 
 ScalarFn = Callable[[Float[Array, " d"]], Float[Array, ""]]
@@ -102,7 +102,7 @@ def check_box(lower: ArrayLike, upper: ArrayLike, dtype: Any = None) -> tuple[Ar
 # wrapping the user's functions) is a static argument hashed by identity, so a
 # repeated call with the same functions, solver, box-or-not and shapes reuses
 # the compilation.
-@eqx.filter_jit
+@jit(filtered=True)
 def solve(fn, solver, max_steps, starts, lower=None, upper=None):
     """Maximise `fn` from every row of `starts` (on the box `[lower, upper]` when given).
 

@@ -6,11 +6,12 @@ import math
 from collections.abc import Callable
 from typing import NamedTuple
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, PRNGKeyArray
+
+from ._compile import jit
 
 
 def log_kill_rate(log_rate: Array, log_regeneration: Array, logdensity: Array) -> Array:
@@ -52,7 +53,7 @@ class PilotEstimate(NamedTuple):
     zero_fraction: float
 
 
-@eqx.filter_jit
+@jit(filtered=True)
 def _pilot_terms(logdensity_fn, regeneration, key, num_draws: int):
     """`log p` and `log u` at `num_draws` draws of the regeneration, drawn and evaluated in one
     compiled program (per log density, regeneration structure and size; reused by later

@@ -37,6 +37,7 @@ from ._checkpoint import (
     read_header,
     save_checkpoint,
 )
+from ._compile import jit
 from ._driver import Budget, Meter, drive
 from ._observables import Observables
 from ._progress import console_note
@@ -73,13 +74,13 @@ class _Carry(NamedTuple):
     step: Array
 
 
-@functools.partial(jax.jit, static_argnums=1)
+@jit(static_argnums=1)
 def _lane_keys(key: PRNGKeyArray, num_lanes: int, first_lane: int | Array = 0) -> Array:
     """One key per lane, independent of how many lanes there are (lane `i` is reproducible)."""
     return jax.vmap(lambda i: jax.random.fold_in(key, i))(first_lane + jnp.arange(num_lanes))
 
 
-@eqx.filter_jit
+@jit(filtered=True)
 def _init(sampler, keys: Array, positions: Array | None, sharding: LaneSharding | None = None):
     if sharding is not None:
         if positions is None:
@@ -95,13 +96,13 @@ def _active(carry: _Carry) -> Array:
     return (carry.sums.open_steps > 0) & ~carry.sums.skip_first
 
 
-@jax.jit
+@jit
 def _count_active(carry: _Carry) -> Array:
     """How many lanes are still inside a tour that counts (one compiled program, not one per operation)."""
     return jnp.sum(_active(carry))
 
 
-@eqx.filter_jit
+@jit(filtered=True)
 def _advance(
     sampler,
     observe: Observables,
@@ -259,10 +260,10 @@ def _start_carry(states, shape: _CarryShape) -> _Carry:
     )
 
 
-_start_carry_jit = jax.jit(_start_carry, static_argnums=1)
+_start_carry_jit = jit(_start_carry, static_argnums=1)
 
 
-@eqx.filter_jit
+@jit(filtered=True)
 def _restart(carry: _Carry, sharding: LaneSharding | None = None) -> _Carry:
     """The carry after its sums, histogram and tour records have been drained to the host."""
     restarted = carry._replace(
@@ -506,7 +507,7 @@ def sample(
         carry = _start_carry_jit(states, shape)  # one compiled program rather than one per array, kept across calls
     else:  # created in place on the devices, each holding its own lanes
         layout = _carry_shardings(jax.eval_shape(start_carry, states), sharding)
-        carry = jax.jit(start_carry, in_shardings=(layout.states,), out_shardings=layout)(states)
+        carry = jit(start_carry, in_shardings=(layout.states,), out_shardings=layout)(states)
         lane_keys = put(lane_keys, sharding.lanes)
     rao_blackwell = weights == "rao_blackwell"
 

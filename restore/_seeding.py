@@ -16,11 +16,12 @@ import math
 from collections.abc import Callable
 from typing import NamedTuple
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
+
+from ._compile import jit
 
 #: MALA's and random-walk Metropolis's optimal acceptance rates.
 _TARGET_ACCEPTANCE = {True: 0.574, False: 0.234}
@@ -63,7 +64,7 @@ def _safe(logdensity, x, use_gradient: bool):
     return value, grad
 
 
-@eqx.filter_jit
+@jit(filtered=True)
 def _chains(logdensity, starts: Array, key: Array, scales: Array, num_steps: int, keep_every: int, use_gradient: bool):
     target = _TARGET_ACCEPTANCE[use_gradient]
     half = num_steps // 2

@@ -14,6 +14,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, ArrayLike, Float, Int
 
+from .._compile import jit
 from .._multistart import check_solver, check_starts, solve
 from .._validation import check_integer, check_scalar_fn
 from ._gaussian import Gaussian
@@ -67,7 +68,7 @@ class LaplaceModes(eqx.Module):
         return logp + 0.5 * (logdet + d * math.log(2 * math.pi))
 
 
-@eqx.filter_jit
+@jit(filtered=True)
 def _local_expansion(logdensity, ys):
     """Log density, gradient and Hessian at every row of `ys`."""
 

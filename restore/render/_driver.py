@@ -14,6 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._checkpoint import key_fingerprint, load_checkpoint, save_checkpoint
+from .._compile import compiler_options
 from .._driver import Budget, Meter, drive
 from .._validation import check_interval
 from ._pss import check_target
@@ -214,7 +215,7 @@ def render(
 
     t0 = time.perf_counter()
     if state is None:
-        init_fn = jax.jit(lambda k: renderer.init(target, k, lanes)).lower(key_init).compile()
+        init_fn = jax.jit(lambda k: renderer.init(target, k, lanes)).lower(key_init).compile(compiler_options())
     n_spec = jax.ShapeDtypeStruct((), jnp.int32)
     # One throwaway call of each compiled function, so that a target's own first-call work (e.g.
     # Dr.Jit recording its kernels for these batch sizes) is paid here, outside the budget.
@@ -222,7 +223,7 @@ def render(
     finishes = renderer.finishes and not finished
     warm_state = (init_fn(warm_key) if state is None else state) if not done or finishes else None
     if not done:
-        chunk_fn = jax.jit(lambda k, s, n: renderer.run(target, k, s, n)).lower(key_run, state_shape, n_spec).compile()
+        chunk_fn = jax.jit(lambda k, s, n: renderer.run(target, k, s, n)).lower(key_run, state_shape, n_spec).compile(compiler_options())
         jax.block_until_ready(chunk_fn(warm_key, warm_state, jnp.asarray(1, jnp.int32)))
     if finishes:
         finisher = _finisher(renderer, target, lanes, state_shape, warm_key, warm_state)
@@ -326,7 +327,7 @@ def _finisher(renderer, target, lanes, state_shape, warm_key, warm_state):
     slots = finishing_slots(lanes)
     key_spec = jax.eval_shape(lambda: warm_key)
     n_spec = jax.ShapeDtypeStruct((), jnp.int32)
-    finish = jax.jit(lambda k, s, n: renderer.finish(target, k, s, n, slots)).lower(key_spec, state_shape, n_spec).compile()
+    finish = jax.jit(lambda k, s, n: renderer.finish(target, k, s, n, slots)).lower(key_spec, state_shape, n_spec).compile(compiler_options())
     jax.block_until_ready(finish(warm_key, warm_state, jnp.asarray(1, jnp.int32)))
     return slots, finish
 
