@@ -618,8 +618,8 @@ def sample(
         sums=run.sums,
         histogram=run.histogram,
         tails=settle(run.tails, run.pending) if has_tours else None,
-        draws=carry.draws[: min(stored, math.ceil(done / thin))],
-        draw_weights=carry.draw_weights[: min(stored, math.ceil(done / thin))],
+        draws=np.asarray(carry.draws)[: min(stored, math.ceil(done / thin))],  # no slicing program per length
+        draw_weights=np.asarray(carry.draw_weights)[: min(stored, math.ceil(done / thin))],
         final_state=carry.states,
         num_steps=done,
         finishing_steps=finishing_steps,
