@@ -5,7 +5,8 @@ tail of the tours: whether a few tours dominate, and so whether the standard err
 be trusted, is read off the largest tours (`_tails`). Every complete tour's duration `T`
 and observable integrals `F`, and every tour start's importance weight, are written to a
 small per-lane buffer; the host takes the buffers after each chunk and keeps the largest
-values. A chunk stops early when some lane's buffer is full, so no tour is ever lost.
+values (`_tails.add_records`: the records wait, packed per lane, and join the top sets in
+batches). A chunk stops early when some lane's buffer is full, so no tour is ever lost.
 """
 
 from __future__ import annotations
