@@ -500,12 +500,12 @@ def sample(
     depth = records_per_lane(num_lanes, observe.size) if has_tours else 0
 
     shape = _CarryShape(num_lanes, observe.size, depth, capacity, positions is not None, 0 if sharding is None else sharding.num_devices)
-    start_carry = functools.partial(_start_carry, shape=shape)
     lane_keys = _lane_keys(key_run, num_lanes, first_lane)
     layout = None
     if sharding is None:
         carry = _start_carry_jit(states, shape)  # one compiled program rather than one per array, kept across calls
     else:  # created in place on the devices, each holding its own lanes
+        start_carry = functools.partial(_start_carry, shape=shape)
         layout = _carry_shardings(jax.eval_shape(start_carry, states), sharding)
         carry = jit(start_carry, in_shardings=(layout.states,), out_shardings=layout)(states)
         lane_keys = put(lane_keys, sharding.lanes)
@@ -617,7 +617,7 @@ def sample(
         observables=observe,
         sums=run.sums,
         histogram=run.histogram,
-        tails=settle(run.tails, run.pending) if has_tours else None,
+        tails=run.settled().tails if has_tours else None,
         draws=np.asarray(carry.draws)[: min(stored, math.ceil(done / thin))],  # no slicing program per length
         draw_weights=np.asarray(carry.draw_weights)[: min(stored, math.ceil(done / thin))],
         final_state=carry.states,
