@@ -82,8 +82,10 @@ class Pending(NamedTuple):
     A merge costs about the same for the few tours of one chunk as for many chunks' worth
     (the partial sort runs over the whole sets), so the records wait on the host, each
     lane's packed after its earlier ones, and join the sets in one merge when some lane's
-    buffer would overflow (or when the sets are read). Unused slots hold `-inf`
-    (durations and weights), as in the sets. `Pending()` is the empty buffer.
+    buffer would overflow (or when the sets are read). Only a lane's first `tours`
+    (`starts`) slots count: a chunk writes its records past them in place, and only the
+    new counts commit them, so a chunk interrupted half-way leaves the committed records
+    as they were. `Pending()` is the empty buffer.
 
     Attributes:
         duration: `(L, W)` durations of waiting tours.
@@ -100,17 +102,25 @@ class Pending(NamedTuple):
     starts: np.ndarray | None = None
 
 
+def pending_width(num_lanes: int, size: int, depth: int, capacity: int) -> int:
+    """`W`: room for several chunks' records (fewer merges), within the sets' memory cap.
+
+    At least `max(depth, capacity)`, so one chunk's records always fit an empty buffer.
+    """
+    least = max(depth, capacity)
+    return int(max(least, min(8 * least, MAX_TAIL_ELEMENTS // max(num_lanes * (size + 2), 1))))
+
+
 def _packed(pending: Pending, lanes: int, size: int, width: int) -> Pending:
     if pending.duration is not None:
         return pending
     used = np.zeros(lanes, np.int64)
-    return Pending(np.full((lanes, width), -np.inf), np.zeros((lanes, width, size)), used, np.full((lanes, width), -np.inf), used)
+    return Pending(np.empty((lanes, width)), np.empty((lanes, width, size)), used, np.empty((lanes, width)), used)
 
 
 def _append(buffer: np.ndarray, used: np.ndarray, values: np.ndarray, count: np.ndarray) -> np.ndarray:
-    """A copy of `buffer` with each lane's first `count` `values` written after its `used` slots."""
+    """`buffer` with each lane's first `count` `values` written, in place, after its `used` slots."""
     lane, slot = np.nonzero(np.arange(int(np.max(count, initial=0)))[None, :] < count[:, None])
-    buffer = buffer.copy()  # the committed run keeps its own buffer (a chunk is counted all or nothing)
     buffer[lane, used[lane] + slot] = values[lane, slot]
     return buffer
 
@@ -121,10 +131,10 @@ def add_records(tails: TourTails, pending: Pending, records: TourRecords) -> tup
     if depth == 0:
         return tails, pending
     count, starts = np.asarray(records.count, np.int64), np.asarray(records.starts, np.int64)
-    width = max(depth, records.capacity)  # one chunk's records always fit an empty buffer
+    lanes, size = records.integral.shape[0], records.integral.shape[2]
+    width = pending_width(lanes, size, depth, records.capacity)
     if pending.duration is not None and (np.any(pending.tours + count > width) or np.any(pending.starts + starts > width)):
         tails, pending = settle(tails, pending), Pending()
-    lanes, size = records.integral.shape[0], records.integral.shape[2]
     pending = _packed(pending, lanes, size, width)
     weights = np.asarray(records.log_importance_weight)
     return tails, Pending(
@@ -141,35 +151,49 @@ def settle(tails: TourTails, pending: Pending) -> TourTails:
 
     Runs on the host, in NumPy: a partial sort there takes a few milliseconds where XLA's
     `top_k` on the CPU sorts with a comparator call per comparison (a few hundred
-    milliseconds per chunk for 512 lanes).
+    milliseconds per chunk for 512 lanes). Only the scores (durations, `|F_j|`, weights)
+    are concatenated and partially sorted; the kept integrals are then gathered from the
+    sets or the buffers by flat indices, without copying the integrals whole.
     """
     depth = tails.duration.shape[1]
     if depth == 0 or pending.duration is None:
         return tails
     assert pending.integral is not None and pending.log_importance_weight is not None
+    assert pending.tours is not None and pending.starts is not None
     width = int(max(np.max(pending.tours), np.max(pending.starts)))  # the slots some lane used
-    new_duration, new_integrals = pending.duration[:, :width], pending.integral[:, :width]
+    lanes, buffer, size = pending.integral.shape
+    lane = np.arange(lanes)[:, None]
+    slots = np.arange(width)[None, :]
+    new_duration = np.where(slots < pending.tours[:, None], pending.duration[:, :width], -np.inf)  # committed slots only
+
+    # the longest tours: index < depth picks from the set, the rest from the buffer
     duration = np.concatenate([tails.duration, new_duration], axis=1)
     index = _top(duration, depth)
-    integrals = np.concatenate([tails.duration_integral, new_integrals], axis=1)
     kept = np.take_along_axis(duration, index, axis=1)
-    duration_integral = np.take_along_axis(integrals, index[:, :, None], axis=1)
+    from_set = tails.duration_integral.reshape(-1, size)[lane * depth + np.minimum(index, depth - 1)]
+    from_buffer = pending.integral.reshape(-1, size)[lane * buffer + np.maximum(index - depth, 0)]
+    duration_integral = np.where((index < depth)[:, :, None], from_set, from_buffer)
+    duration_integral[np.isinf(kept)] = 0.0  # unused slots hold zeros, whatever the buffer held
 
-    new_integral = np.swapaxes(new_integrals, 1, 2)  # (L, m, W)
-    integral = np.concatenate([tails.integral, new_integral], axis=2)
-    shape = new_integral.shape
-    integral_duration = np.concatenate([tails.integral_duration, np.broadcast_to(new_duration[:, None, :], shape)], axis=2)
-    score = np.where(np.isfinite(integral_duration), np.abs(integral), -np.inf)
-    by_size = _top(score, depth)
-
-    weights = np.concatenate([tails.log_importance_weight, pending.log_importance_weight[:, :width]], axis=1)
-    return TourTails(
-        kept,
-        duration_integral,
-        np.take_along_axis(integral, by_size, axis=2),
-        np.take_along_axis(integral_duration, by_size, axis=2),
-        np.take_along_axis(weights, _top(weights, depth), axis=1),
+    # per component, the tours of largest |F_j|
+    new_score = np.where(np.isfinite(new_duration)[:, :, None], np.abs(pending.integral[:, :width]), -np.inf)
+    old_score = np.where(np.isfinite(tails.integral_duration), np.abs(tails.integral), -np.inf)
+    by_size = _top(np.concatenate([old_score, np.swapaxes(new_score, 1, 2)], axis=2), depth)  # (L, m, K)
+    in_set = by_size < depth
+    component = np.arange(size)[None, :, None]
+    set_index = (lane[:, :, None] * size + component) * depth + np.minimum(by_size, depth - 1)
+    slot = np.maximum(by_size - depth, 0)
+    integral_duration = np.where(
+        in_set, np.take(tails.integral_duration, set_index), np.take(new_duration, lane[:, :, None] * width + slot)
     )
+    integral = np.where(
+        in_set, np.take(tails.integral, set_index), np.take(pending.integral, (lane[:, :, None] * buffer + slot) * size + component)
+    )
+    integral[np.isinf(integral_duration)] = 0.0
+
+    new_weights = np.where(slots < pending.starts[:, None], pending.log_importance_weight[:, :width], -np.inf)
+    weights = np.concatenate([tails.log_importance_weight, new_weights], axis=1)
+    return TourTails(kept, duration_integral, integral, integral_duration, np.take_along_axis(weights, _top(weights, depth), axis=1))
 
 
 # ---------------------------------------------------------------------------- after the run (numpy)
