@@ -117,7 +117,9 @@ def _advance(
     """Run every lane for `length` steps, or (`finishing`) until each lane's open tour ends.
 
     One compiled program serves every chunk length, thinning and both modes (all are
-    traced), so a run compiles its step function once, and runs of other lengths reuse it. When finishing, no new tour is started:
+    traced), so a run compiles its step function once, and runs of other lengths reuse it.
+    The carry's totals (sums, histogram, tour records) are those the host drained after the
+    previous chunk, so the program restarts them first. When finishing, no new tour is started:
     a lane whose tour has ended stops (its state and sums are frozen). Dropping the tours
     still open when the step budget runs out would bias the estimates towards short
     tours (long tours are the ones likely to straddle the end). Finishing them makes the
@@ -179,6 +181,9 @@ def _advance(
             new = jax.lax.with_sharding_constraint(new, _carry_shardings(new, sharding))
         return new, done + 1
 
+    carry = _restarted(carry)  # the host drained the previous chunk's totals (a no-op on a fresh carry)
+    if sharding is not None:
+        carry = jax.lax.with_sharding_constraint(carry, _carry_shardings(carry, sharding))
     return jax.lax.while_loop(cond, body, (carry, jnp.zeros((), jnp.int32)))
 
 
@@ -217,7 +222,7 @@ def _replicate(tree, sharding: LaneSharding):
 
 
 class _Run(NamedTuple):
-    """A run's progress: the device carry and the float64 host totals drained from it
+    """A run's progress: the device carry (its totals already counted) and the float64 host totals drained from it
     (sums, tour histogram, and each lane's largest tours, merged from the tour records;
     the latest chunks' records may wait in `pending`, see `settled`)."""
 
@@ -263,15 +268,11 @@ def _start_carry(states, shape: _CarryShape) -> _Carry:
 _start_carry_jit = jit(_start_carry, static_argnums=1)
 
 
-@jit(filtered=True)
-def _restart(carry: _Carry, sharding: LaneSharding | None = None) -> _Carry:
-    """The carry after its sums, histogram and tour records have been drained to the host."""
-    restarted = carry._replace(
+def _restarted(carry: _Carry) -> _Carry:
+    """The carry with its sums, histogram and tour records restarted (the host has drained them)."""
+    return carry._replace(
         sums=restart_sums(carry.sums), histogram=jax.tree.map(jnp.zeros_like, carry.histogram), tours=emptied(carry.tours)
     )
-    if sharding is not None:
-        restarted = jax.lax.with_sharding_constraint(restarted, _carry_shardings(restarted, sharding))
-    return restarted
 
 
 class _Saver:
@@ -551,7 +552,7 @@ def sample(
         tails, pending = add_records(run.tails, run.pending, records)  # the tours join each lane's largest
         if not finishing:
             trace_rows.append(chunk_totals(host_sums, advanced.step, steps_taken))
-        return _Run(_restart(advanced, sharding), sums, histogram, tails, pending), int(steps_taken)
+        return _Run(advanced, sums, histogram, tails, pending), int(steps_taken)  # drained: the next chunk restarts them
 
     trace_rows: list[tuple] = []  # per-chunk totals, from the sums each chunk drains anyway
     label = f"{type(sampler).__name__}: {num_lanes} lanes"
