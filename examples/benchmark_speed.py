@@ -6,10 +6,12 @@ round-robin, and each ratio is the median over rounds of the same round's ratio,
 load change on a shared machine hits all of them alike):
 
 - BlackJAX RMH: `lax.scan` over `vmap(step)`, keeping a running sum of positions (the
-  yardstick: the cheapest useful MCMC loop);
+  yardstick: the cheapest useful MCMC loop), and the same on `restore.unrolled_keys` (the
+  keys restore's loops draw with: JAX's bits, the hash unrolled), to show how much of
+  restore's speed is the keys;
 - the bare jump-Restore step: `lax.scan` over `JumpRestore.step_lanes` (`vmap(step)`, with
   the next tours' starts drawn for the killed lanes only) with a running Rao-Blackwellised
-  sum (the step alone, without the driver);
+  sum, on unrolled keys (the step alone, without the driver);
 - `restore.sample` with `JumpRestore` (everything a user gets: the streamed tour sums,
   the tour histogram and tail records, default observables `x` and `x**2`);
 - the same as a user calls it, with default arguments (50 chunks for the progress bar,
@@ -52,12 +54,15 @@ class Contender(NamedTuple):
     compile_seconds: float
 
 
-def blackjax_rmh(logdensity, scale: float, x0, steps: int) -> Contender:
-    """BlackJAX's Gaussian random-walk Metropolis in a scan, with a running sum of positions."""
+def blackjax_rmh(logdensity, scale: float, x0, steps: int, unrolled: bool = False) -> Contender:
+    """BlackJAX's Gaussian random-walk Metropolis in a scan, with a running sum of positions
+    (`unrolled`: on `restore.unrolled_keys`, the same draws as JAX's keys, as restore's loop runs)."""
     lanes, dim = x0.shape
     rmh = blackjax.additive_step_random_walk.normal_random_walk(logdensity, scale * jnp.ones(dim))
 
     def run(key, x0):
+        key = restore.unrolled_keys(key) if unrolled else key
+
         def body(carry, key):
             states, total = carry
             states, _ = jax.vmap(rmh.step)(jax.random.split(key, lanes), states)
@@ -70,10 +75,13 @@ def blackjax_rmh(logdensity, scale: float, x0, steps: int) -> Contender:
 
 
 def bare_restore_step(sampler, lanes: int, steps: int) -> Contender:
-    """`JumpRestore.step_lanes` in a scan, with a Rao-Blackwellised running sum."""
+    """`JumpRestore.step_lanes` in a scan, with a Rao-Blackwellised running sum, on
+    `restore.unrolled_keys` (as `restore.sample` runs it)."""
     states = jax.vmap(sampler.init)(jax.random.split(jax.random.key(0), lanes))
 
     def run(key, states):
+        key = restore.unrolled_keys(key)
+
         def body(carry, key):
             states, total = carry
             states, info = sampler.step_lanes(jax.random.split(key, lanes), states)
@@ -135,12 +143,12 @@ def report(name: str, contenders: dict[str, Contender], work: int, rounds: int) 
     base = np.asarray(times["BlackJAX RMH"])
     base_compile = contenders["BlackJAX RMH"].compile_seconds
     print(f"\n{name}")
-    print(f"{'':34s} {'M steps/s':>10s} {'/ BlackJAX':>11s} {'compile s':>10s} {'/ BlackJAX':>11s}")
+    print(f"{'':38s} {'M steps/s':>10s} {'/ BlackJAX':>11s} {'compile s':>10s} {'/ BlackJAX':>11s}")
     for label, contender in contenders.items():
         seconds = np.asarray(times[label])
         rate, ratio = work / float(np.median(seconds)), float(np.median(base / seconds))
         compile_seconds = contender.compile_seconds
-        print(f"{label:34s} {rate / 1e6:10.3f} {ratio:11.2f} {compile_seconds:10.2f} {compile_seconds / base_compile:11.2f}")
+        print(f"{label:38s} {rate / 1e6:10.3f} {ratio:11.2f} {compile_seconds:10.2f} {compile_seconds / base_compile:11.2f}")
 
 
 def main() -> None:
@@ -166,6 +174,7 @@ def main() -> None:
         "1. standard normal target, Gaussian(0, 2.25 I) regeneration, RandomWalk(0.75), T = 10",
         {
             "BlackJAX RMH": blackjax_rmh(normal, 0.75, x0, steps),
+            "  the same, on restore.unrolled_keys": blackjax_rmh(normal, 0.75, x0, steps, unrolled=True),
             "JumpRestore step (no driver)": bare_restore_step(jump.calibrate(jax.random.key(9))[0], lanes, steps),
             "restore.sample(JumpRestore)": restore_sample(jump, lanes, steps),
             "  the same, default arguments": restore_sample_defaults(jump, lanes, steps),
@@ -187,6 +196,7 @@ def main() -> None:
         f"2. the demo: 3-mode Gaussian mixture, Student-t Laplace mixture ({len(laplace.components)} components), T = 10",
         {
             "BlackJAX RMH": blackjax_rmh(target.logdensity, scale, x0, steps),
+            "  the same, on restore.unrolled_keys": blackjax_rmh(target.logdensity, scale, x0, steps, unrolled=True),
             "JumpRestore step (no driver)": bare_restore_step(demo.calibrate(jax.random.key(9))[0], lanes, steps),
             "restore.sample(JumpRestore)": restore_sample(demo, lanes, steps),
             "  the same, default arguments": restore_sample_defaults(demo, lanes, steps),

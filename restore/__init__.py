@@ -43,6 +43,8 @@ from ._sampler import RunFacts as RunFacts
 from ._sampler import StepInfo as StepInfo
 from ._speculation import SpeculativeSteps as SpeculativeSteps
 from ._speculation import speculative_steps as speculative_steps
+from ._threefry import UNROLLED_THREEFRY as UNROLLED_THREEFRY
+from ._threefry import unrolled_keys as unrolled_keys
 from ._trace import RunTrace as RunTrace
 
 __version__ = "0.1.0"

@@ -16,6 +16,7 @@ import numpy as np
 from .._checkpoint import key_fingerprint, load_checkpoint, save_checkpoint
 from .._compile import compiler_options
 from .._driver import Budget, Meter, drive
+from .._threefry import unrolled_keys
 from .._validation import check_interval
 from ._pss import check_target
 from ._renderer import (
@@ -223,7 +224,10 @@ def render(
     finishes = renderer.finishes and not finished
     warm_state = (init_fn(warm_key) if state is None else state) if not done or finishes else None
     if not done:
-        chunk_fn = jax.jit(lambda k, s, n: renderer.run(target, k, s, n)).lower(key_run, state_shape, n_spec).compile(compiler_options())
+        # the chunk's draws on unrolled Threefry keys: the same bits, a faster loop on the CPU
+        # (the init and the finisher keep JAX's keys, where unrolling costs more compile time than it saves)
+        run = lambda k, s, n: renderer.run(target, unrolled_keys(k), s, n)  # noqa: E731
+        chunk_fn = jax.jit(run).lower(key_run, state_shape, n_spec).compile(compiler_options())
         jax.block_until_ready(chunk_fn(warm_key, warm_state, jnp.asarray(1, jnp.int32)))
     if finishes:
         finisher = _finisher(renderer, target, lanes, state_shape, warm_key, warm_state)
