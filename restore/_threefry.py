@@ -9,6 +9,9 @@ the same hash, split, fold-in and random bits with plain elementwise operations,
 XLA fuses. The bits are the same (tests compare them with JAX's own), so every stream, and
 every result, stays bit-identical; only the compiled program changes.
 
+JAX's gamma sampler runs its draws one after another for any keys but its own, so gamma
+draws go through `loggamma`, which hands it JAX's keys with the same bits.
+
 It follows JAX's `jax_threefry_partitionable` layout (the default since JAX 0.5); with that
 flag off, or for keys of another implementation, the keys are left as they are.
 """
@@ -110,3 +113,14 @@ def unrolled_keys(keys: PRNGKeyArray) -> PRNGKeyArray:
     if str(jax.random.key_impl(keys)) != "threefry2x32":
         return keys
     return jax.random.wrap_key_data(jax.random.key_data(keys), impl=UNROLLED_THREEFRY)
+
+
+def loggamma(key: PRNGKeyArray, a, shape: tuple[int, ...], dtype) -> Array:
+    """`jax.random.loggamma`, drawn on JAX's own Threefry keys when given unrolled ones (the same bits).
+
+    JAX's gamma sampler batches its rejection loop with `vmap` only for JAX's own Threefry
+    keys; for any other implementation it runs the draws one after another (`lax.map`).
+    """
+    if jnp.issubdtype(key.dtype, jax.dtypes.prng_key) and jax.random.key_impl(key) == UNROLLED_THREEFRY:
+        key = jax.random.wrap_key_data(jax.random.key_data(key), impl="threefry2x32")
+    return jax.random.loggamma(key, a, shape, dtype=dtype)

@@ -12,6 +12,7 @@ import numpy as np
 from jax.scipy.special import gammaln
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
+from .._threefry import loggamma
 from .._validation import as_float_array, check_point, check_shape
 from ._base import AbstractRegeneration
 
@@ -41,7 +42,7 @@ def log_chi2_over_df(key: PRNGKeyArray, df: float, shape: tuple[int, ...], dtype
     if df == round(df) and df <= 64:
         normals = jax.random.normal(key, shape + (int(df),), dtype=dtype)
         return jnp.log(jnp.sum(normals**2, axis=-1)) - math.log(df)
-    return jax.random.loggamma(key, 0.5 * df, shape, dtype=dtype) - math.log(0.5 * df)
+    return loggamma(key, 0.5 * df, shape, dtype) - math.log(0.5 * df)
 
 
 @final

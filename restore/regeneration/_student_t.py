@@ -13,6 +13,7 @@ from jax.scipy.special import betaln, gammaln
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
 from .._linalg import half_log_det, mahalanobis_sq
+from .._threefry import loggamma
 from .._validation import as_float_array, check_point, check_shape, check_vector, is_concrete
 from ._base import AbstractRegeneration
 from ._utils import scale_tril
@@ -141,7 +142,7 @@ class StudentT(AbstractRegeneration):
             log_w = jnp.log(jnp.sum(normals**2, axis=-1)) - jnp.log(self.df)
         else:
             half_df = 0.5 * self.df
-            log_w = jax.random.loggamma(key_w, half_df, shape, dtype=dtype) - jnp.log(half_df)
+            log_w = loggamma(key_w, half_df, shape, dtype) - jnp.log(half_df)
         return self.loc + (z @ self.scale_tril.T) * jnp.exp(-0.5 * log_w)[..., None]
 
     def log_prob(self, x: Float[Array, " d"]) -> Float[Array, ""]:

@@ -9,7 +9,7 @@ import pytest
 
 import restore
 import restore._sample as sample_module
-from restore._threefry import UNROLLED_THREEFRY, threefry2x32, unrolled_keys
+from restore._threefry import UNROLLED_THREEFRY, loggamma, threefry2x32, unrolled_keys
 from restore.local import RandomWalk
 from restore.regeneration import Gaussian, StudentT
 
@@ -26,6 +26,7 @@ DRAWS = {
     "normal": lambda k: jax.random.normal(k, (4, 3)),
     "randint": lambda k: jax.random.randint(k, (4,), 0, 1000),
     "student t": lambda k: jax.random.t(k, 5.0, (3,)),
+    "loggamma": lambda k: loggamma(k, 2.5, (3,), jnp.float64),
 }
 
 
@@ -76,7 +77,7 @@ def test_other_keys_are_left_alone():
         jax.config.update("jax_threefry_partitionable", previous)
 
 
-@pytest.mark.parametrize("regeneration", [Gaussian(jnp.zeros(2), 2.0), StudentT(jnp.zeros(2), 2.0, 4.0)])
+@pytest.mark.parametrize("regeneration", [Gaussian(jnp.zeros(2), 2.0), StudentT(jnp.zeros(2), 2.0, 4.5)])
 def test_a_run_is_the_same_with_jax_keys(monkeypatch, regeneration):
     """`restore.sample` on unrolled keys against the same run on JAX's keys: the same sums and draws."""
     sampler = restore.JumpRestore(lambda x: -0.5 * jnp.sum(x**2), RandomWalk(0.8), regeneration, tour_length=4.0)
@@ -88,4 +89,4 @@ def test_a_run_is_the_same_with_jax_keys(monkeypatch, regeneration):
     np.testing.assert_array_equal(fast.draws, plain.draws)
     for name in ("sum_t", "num_tours", "num_accepted"):
         np.testing.assert_array_equal(getattr(fast.sums, name), getattr(plain.sums, name))
-    np.testing.assert_allclose(fast.sums.sum_f, plain.sums.sum_f, rtol=1e-13)  # fused arithmetic may round differently
+    np.testing.assert_array_equal(fast.sums.sum_f, plain.sums.sum_f)
