@@ -12,6 +12,7 @@ import numpy as np
 from jaxtyping import Array, PRNGKeyArray
 
 from ._compile import jit
+from ._threefry import unrolled_keys
 
 
 def log_kill_rate(log_rate: Array, log_regeneration: Array, logdensity: Array) -> Array:
@@ -58,7 +59,7 @@ def _pilot_terms(logdensity_fn, regeneration, key, num_draws: int):
     """`log p` and `log u` at `num_draws` draws of the regeneration, drawn and evaluated in one
     compiled program (per log density, regeneration structure and size; reused by later
     calibrations), where drawing outside it compiled every operation of the draw on its own."""
-    draws = regeneration.sample(key, (num_draws,))
+    draws = regeneration.sample(unrolled_keys(key), (num_draws,))
     log_p = jax.vmap(logdensity_fn)(draws)
     log_u = jax.vmap(regeneration.log_prob)(draws)
     return log_p, log_u

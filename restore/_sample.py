@@ -83,6 +83,7 @@ def _lane_keys(key: PRNGKeyArray, num_lanes: int, first_lane: int | Array = 0) -
 
 @jit(filtered=True)
 def _init(sampler, keys: Array, positions: Array | None, sharding: LaneSharding | None = None):
+    keys = unrolled_keys(keys)
     if sharding is not None:
         if positions is None:
             return map_lanes(lambda s, k: s.init(k), sharding, sampler, keys)
