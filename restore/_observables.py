@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping
 from typing import NamedTuple
 
@@ -61,7 +62,7 @@ class Observables(eqx.Module):
                 raise ValueError(f"observable {name!r} failed on a state of shape ({dim},): {err}") from err
             if not hasattr(out, "shape"):
                 raise ValueError(f"observable {name!r} must return an array, got {type(out).__name__}")
-            size = int(jnp.prod(jnp.asarray(out.shape))) if out.shape else 1
+            size = math.prod(out.shape)
             slots.append(Slot(str(name), tuple(out.shape), start, size))
             start += size
         self.functions = tuple(observables.values())

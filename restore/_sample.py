@@ -98,12 +98,6 @@ def _active(carry: _Carry) -> Array:
     return (carry.sums.open_steps > 0) & ~carry.sums.skip_first
 
 
-@jit
-def _count_active(carry: _Carry) -> Array:
-    """How many lanes are still inside a tour that counts (one compiled program, not one per operation)."""
-    return jnp.sum(_active(carry))
-
-
 @jit(filtered=True)
 def _advance(
     sampler,
@@ -269,6 +263,12 @@ def _start_carry(states, shape: _CarryShape) -> _Carry:
 
 
 _start_carry_jit = jit(_start_carry, static_argnums=1)
+
+
+@jit
+def _split_three(key: PRNGKeyArray) -> tuple[PRNGKeyArray, PRNGKeyArray, PRNGKeyArray]:
+    """`jax.random.split(key, 3)`, unpacked in one compiled program (not one to split and one to unpack)."""
+    return tuple(jax.random.split(key, 3))
 
 
 def _restarted(carry: _Carry) -> _Carry:
@@ -464,7 +464,7 @@ def sample(
             "1/Gamma time units of the path (Campbell's formula), so use weights='rao_blackwell'"
         )
 
-    key_pilot, key_init, key_run = jax.random.split(key, 3)
+    key_pilot, key_init, key_run = _split_three(key)
     sampler, pilot = sampler.calibrate(key_pilot)
     dim = sampler.dim
     if positions is not None:
@@ -596,7 +596,9 @@ def sample(
     if has_tours and not interrupted and finish_tours and not finished:
         try:
             ended, extra = advance_and_drain(run, num_steps, True)
-            extra, still_open = int(extra), int(_count_active(ended.carry))
+            drained = ended.sums  # the host sums of the finishing chunk: `_active`'s fields, on the host
+            assert drained is not None
+            extra, still_open = int(extra), int(np.sum((drained.open_steps > 0) & ~drained.skip_first))
             run, finishing_steps, unfinished = ended, extra, still_open
         except KeyboardInterrupt:  # keep the budget's result; its open tours are dropped
             interrupted = True
