@@ -45,7 +45,7 @@ from ._jump_restore import JumpRestore
 from ._pareto import K_HAT_LIMIT
 from ._progress import console_note
 from ._result import SampleResult
-from ._sample import _thinning, sample
+from ._sample import _draw_capacity, _thinning, sample
 from ._seeding import seed_draws
 from ._validation import check_integer, check_logdensity
 from .local import AbstractLocalKernel, RandomWalk
@@ -360,18 +360,22 @@ def autosample(
 
     def sampler_for(fit, u, log_z):
         kernel = local if local is not None else RandomWalk(jnp.asarray(2.38 / math.sqrt(d) * typical_scale(fit.distribution), dtype))
+        sampler = JumpRestore(logdensity, kernel, u, tour_length=tour_length)
         if log_z is None:
-            return JumpRestore(logdensity, kernel, u, tour_length=tour_length), True
-        return JumpRestore(logdensity, kernel, u, log_rate=log_z - math.log(tour_length)), False
+            return sampler, True
+        # Calibrated from the stage's log Z, not by a pilot; as a sampler with the same static
+        # fields as a piloted one, so that its run reuses the programs compiled for the stage.
+        return sampler.calibrated_to(jnp.asarray(log_z, dtype)), False
 
-    # Stages store as many draws per lane as the final run, and stream the same observables, so
-    # the final run reuses the compiled program of the stage whose regeneration it takes.
+    # Stages store draws in a buffer of the final run's shape, and stream the same observables,
+    # so the final run reuses the compiled programs of the stage whose regeneration it takes.
     final_draws = sample_kwargs.get("max_draws", 100_000)
     _, stored = _thinning(num_steps, num_lanes, final_draws, sample_kwargs.get("thin"))
     if stored > 0:
         stage_draws, stage_thin = stored * num_lanes, max(1, stage_steps // stored)
+        draw_rows = sample_kwargs.get("draw_rows") or _draw_capacity(stored, num_lanes, final_draws)
     else:  # the final run stores no draws; the stages need some to fit to
-        stage_draws, stage_thin = min(100_000, num_lanes * 64), None
+        stage_draws, stage_thin, draw_rows = min(100_000, num_lanes * 64), None, None
 
     best = None  # (report, fit, regeneration, log Z) of the stage the final run takes (see `preferred`)
     log_z = None
@@ -385,6 +389,7 @@ def autosample(
             result = sample(
                 sampler, jax.random.fold_in(key_stages, stage), num_lanes=num_lanes, num_steps=stage_steps,
                 observables=observables, progress=progress, max_draws=stage_draws, thin=stage_thin,
+                draw_rows=draw_rows,
             )  # fmt: skip
         pilot = sampler.pilot_size if piloted else 0
         report = _stage_report(stage, "adapt", choice.fit, result, pilot, time.perf_counter() - clock)

@@ -273,9 +273,23 @@ class AbstractRestore(AbstractSampler):
         if self.log_rate is not None:
             return self, None
         pilot = pilot_log_z(key, self.log_value, self.transfers[0].reference, self.pilot_size)
-        rates = jnp.asarray([pilot.log_z - math.log(t) for t in self.tour_length])  # type: ignore[union-attr]
+        return self.calibrated_to(pilot.log_z), pilot
+
+    def calibrated_to(self, log_z: float | Array) -> AbstractRestore:
+        """The sampler with `log_rate` set from `tour_length` and an estimate of `log Z` you have.
+
+        What `calibrate` does with its pilot's estimate, for an estimate from elsewhere (an
+        earlier run of the same target): phase `k` gets `log c_tilde_k = log_z - log T_k`.
+        The sampler keeps its `tour_length`, so a run of it reuses the compiled programs of
+        a run of the same sampler calibrated by a pilot.
+        """
+        if self.tour_length is None:
+            raise ValueError("calibrated_to needs a sampler given a tour_length; this one was given a log_rate")
+        if self.log_rate is not None:
+            raise ValueError("this sampler is calibrated already (it has a log_rate)")
+        rates = jnp.asarray([log_z - math.log(t) for t in self.tour_length])
         rates = rates[0] if self.num_phases == 1 else rates
-        return eqx.tree_at(lambda s: s.log_rate, self, rates, is_leaf=lambda x: x is None), pilot
+        return eqx.tree_at(lambda s: s.log_rate, self, rates, is_leaf=lambda x: x is None)
 
     def run_facts(self) -> RunFacts:
         return RunFacts(self.effective_log_rate, self.tour_length)

@@ -353,6 +353,7 @@ def sample(
     positions: Array | None = None,
     max_draws: int = 100_000,
     thin: int | None = None,
+    draw_rows: int | None = None,
     progress: bool = True,
     num_chunks: int = 50,
     finish_tours: bool = True,
@@ -392,6 +393,11 @@ def sample(
             `thin`-th step is stored, with a message (logged, shown with the progress
             bar, and in `result.summary()`); `0` stores none.
         thin: store every `thin`-th state (overrides the budget's choice).
+        draw_rows: rows per lane of the buffer of stored draws (default: the draws stored
+            per lane rounded up to a power of two, within `max_draws`). The buffer is part
+            of the compiled program, so runs of other lengths given the same `draw_rows`
+            share one program (`restore.autosample` gives its stages the final run's).
+            At least the number of draws stored per lane.
         progress: show a progress bar (updated between jitted chunks, so it costs nothing
             inside the loop).
         num_chunks: how many jitted chunks the run is cut into for the progress bar.
@@ -488,6 +494,10 @@ def sample(
     thin_given = thin
     thin, stored = _thinning(num_steps, num_lanes, max_draws, thin)
     capacity = _draw_capacity(stored, num_lanes, max_draws)
+    if draw_rows is not None:
+        capacity = check_integer(draw_rows, "draw_rows", minimum=0)
+        if capacity < stored:
+            raise ValueError(f"draw_rows={capacity} is fewer than the {stored} draws this run stores per lane")
     draws_note = None
     if thin_given is None and thin > 1 and stored > 0:
         draws_note = (
@@ -535,6 +545,7 @@ def sample(
             "weights": weights,
             "thin": thin,
             "stored": stored,
+            **({} if draw_rows is None else {"draw_rows": capacity}),
             "positions": None if positions is None else array_digest(positions),
             "finish_tours": bool(finish_tours),
             "num_devices": 1 if sharding is None else sharding.num_devices,

@@ -22,12 +22,26 @@ def forty_modes(x):
 
 
 @pytest.fixture(scope="module")
-def spread():
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        return restore.autosample(
-            forty_modes, jax.random.key(0), box=(-50.0, 50.0), dim=2, num_lanes=256, num_steps=400, progress=False
-        )
+def traced():
+    """The names of the functions JAX traced for compilation while the `spread` run ran."""
+    return []
+
+
+@pytest.fixture(scope="module")
+def spread(traced):
+    def listen(event, duration, **kwargs):
+        if event.endswith("jaxpr_trace_duration"):
+            traced.append(kwargs.get("fun_name"))
+
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return restore.autosample(
+                forty_modes, jax.random.key(0), box=(-50.0, 50.0), dim=2, num_lanes=256, num_steps=400, progress=False
+            )
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listen)
 
 
 def test_many_modes_get_the_normalising_constant_right(spread):
@@ -50,6 +64,14 @@ def test_stages_are_reported_and_counted(spread):
     text = spread.summary()
     assert "stage" in text and "final" in text and "k_hat" in text
     assert "AutoResult" in repr(spread)
+
+
+def test_the_final_run_reuses_the_programs_compiled_for_its_stage(spread, traced):
+    # One loop program and one start program per regeneration structure the stages tried; the
+    # final run (four times as long, calibrated from the stage's log Z) compiles neither again.
+    structures = {(s.family, s.num_components) for s in spread.stages if s.kind == "adapt"}
+    assert 1 <= traced.count("_advance") <= len(structures), (traced.count("_advance"), structures)
+    assert traced.count("_init") <= len(structures), (traced.count("_init"), structures)
 
 
 def test_the_final_run_takes_a_healthy_stage():

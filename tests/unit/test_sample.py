@@ -87,3 +87,41 @@ def test_the_position_stays_available_with_custom_observables():
     own = restore.sample(sampler, jax.random.key(3), observables={"x": norm}, **kwargs)
     assert [slot.name for slot in own.observables.slots] == ["x"] and own.estimate("x").value.shape == ()
     np.testing.assert_array_equal(own.estimate("x").value, result.estimate("norm").value)
+
+
+def test_draw_rows_shares_one_program_between_runs_of_other_lengths_and_changes_nothing():
+    sampler = restore.JumpRestore(std_normal, RandomWalk(1.0), Gaussian(jnp.zeros(2), 2.0), tour_length=2.0)
+    sampler = sampler.calibrated_to(jnp.log(2 * jnp.pi))
+    traced = []
+
+    def listen(event, duration, **kwargs):
+        if event.endswith("jaxpr_trace_duration"):
+            traced.append(kwargs.get("fun_name"))
+
+    def run(num_steps, **kwargs):
+        return restore.sample(sampler, jax.random.key(3), num_lanes=16, num_steps=num_steps, progress=False, **kwargs)
+
+    plain = run(40)
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    try:
+        short, long = run(40, draw_rows=128), run(120, draw_rows=128)
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listen)
+    assert traced.count("_advance") == 1  # the 40-step and the 120-step runs share the loop program
+    assert short.draws.shape == plain.draws.shape == (40, 16, 2) and long.draws.shape == (120, 16, 2)
+    np.testing.assert_array_equal(short.draws, plain.draws)
+    np.testing.assert_array_equal(short.estimate("x").value, plain.estimate("x").value)
+    with pytest.raises(ValueError, match="fewer than the 120 draws"):
+        run(120, draw_rows=64)
+
+
+def test_calibrated_to_sets_the_rate_from_a_known_log_z_and_keeps_the_tour_length():
+    sampler = restore.JumpRestore(std_normal, RandomWalk(1.0), Gaussian(jnp.zeros(2), 2.0), tour_length=2.0)
+    calibrated = sampler.calibrated_to(1.5)
+    assert calibrated.tour_length == (2.0,) and float(calibrated.log_rate) == pytest.approx(1.5 - np.log(2.0))
+    piloted, pilot = sampler.calibrate(jax.random.key(0))
+    assert float(piloted.log_rate) == float(sampler.calibrated_to(pilot.log_z).log_rate)
+    with pytest.raises(ValueError, match="calibrated already"):
+        calibrated.calibrated_to(1.0)
+    with pytest.raises(ValueError, match="needs a sampler given a tour_length"):
+        restore.JumpRestore(std_normal, RandomWalk(1.0), Gaussian(jnp.zeros(2), 2.0), log_rate=0.0).calibrated_to(1.0)
