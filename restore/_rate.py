@@ -12,7 +12,6 @@ import numpy as np
 from jaxtyping import Array, PRNGKeyArray
 
 from ._compile import jit
-from ._threefry import unrolled_keys
 
 
 def log_kill_rate(log_rate: Array, log_regeneration: Array, logdensity: Array) -> Array:
@@ -58,8 +57,11 @@ class PilotEstimate(NamedTuple):
 def _pilot_terms(logdensity_fn, regeneration, key, num_draws: int):
     """`log p` and `log u` at `num_draws` draws of the regeneration, drawn and evaluated in one
     compiled program (per log density, regeneration structure and size; reused by later
-    calibrations), where drawing outside it compiled every operation of the draw on its own."""
-    draws = regeneration.sample(unrolled_keys(key), (num_draws,))
+    calibrations), where drawing outside it compiled every operation of the draw on its own.
+    It draws on JAX's keys, not `unrolled_keys` (the same bits): the pilot runs once, and the
+    unrolled key code compiled 1.7-2.9x slower for mixtures (1.75 against 0.61 s for
+    autosample's mixture of a diagonal mixture and a Student-t)."""
+    draws = regeneration.sample(key, (num_draws,))
     log_p = jax.vmap(logdensity_fn)(draws)
     log_u = jax.vmap(regeneration.log_prob)(draws)
     return log_p, log_u
