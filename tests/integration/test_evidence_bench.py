@@ -64,7 +64,7 @@ def test_problem_density_and_truth_carry_the_same_offset(name):
 def test_truth_matches_an_independent_estimate_and_a_wrong_offset_is_detected():
     """log Z of the 2-d mixture problem by plain Monte Carlo over its box: a truth off by 0.1 nats fails."""
     problem = get_evidence_problem("gmm40")
-    x = problem.uniform_points(jax.random.key(7), 2**20)
+    x = problem.uniform_points(jax.random.key(7), 2**18)  # relative se 0.009: the 0.1 offset is 11 se away
     log_p = jax.jit(jax.vmap(problem.logdensity))(x)
     n = log_p.shape[0]
     log_mean = float(logsumexp(log_p) - math.log(n))
