@@ -5,7 +5,9 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+import threading
 import time
+from collections import OrderedDict
 from collections.abc import Callable
 from typing import Any
 
@@ -44,7 +46,8 @@ class RenderResult:
         evaluations: target evaluations spent (initialisation included).
         seconds: wall time of the run (initialisation, steps and `on_update` calls),
             compilation excluded.
-        compile_seconds: time spent compiling the jitted initialisation and chunk.
+        compile_seconds: time spent compiling the jitted initialisation and chunk (near
+            zero when an earlier render of the same set-up compiled them).
         steps: renderer steps taken per lane within the budget.
         lanes: number of lanes.
         statistics: renderer diagnostics (acceptance rate, tours, `c`, `Z_hat`, ...), with the
@@ -111,7 +114,9 @@ def render(
     """Render `target` with `renderer` until the time or evaluation budget is spent.
 
     The renderer's `init` and a chunk of `chunk` steps (a `fori_loop`) are compiled once,
-    ahead of the run (reported as `compile_seconds`, not counted in `seconds`). Between
+    ahead of the run (reported as `compile_seconds`, not counted in `seconds`), and kept
+    for the next renders of the same set-up in this process (the same target object,
+    an equal renderer, the same lanes: see `_programs`), which then start at once. Between
     chunks the device tally is added to float64 host totals and zeroed, the progress bar
     advances, and `on_update(image_so_far, statistics)` is called (progressive output).
     Ctrl-C (KeyboardInterrupt) stops the run and returns the image of the finished chunks,
@@ -215,22 +220,24 @@ def render(
     done = (max_steps is not None and steps >= max_steps) or (seconds is not None and spent >= seconds)
 
     t0 = time.perf_counter()
-    if state is None:
-        init_fn = jax.jit(lambda k: renderer.init(target, k, lanes)).lower(key_init).compile(compiler_options())
-    n_spec = jax.ShapeDtypeStruct((), jnp.int32)
-    # One throwaway call of each compiled function, so that a target's own first-call work (e.g.
-    # Dr.Jit recording its kernels for these batch sizes) is paid here, outside the budget.
-    warm_key = jax.random.fold_in(key_init, 1)
+    programs = _programs(renderer, target, lanes, key_init, state_shape)
     finishes = renderer.finishes and not finished
-    warm_state = (init_fn(warm_key) if state is None else state) if not done or finishes else None
-    if not done:
-        # the chunk's draws on unrolled Threefry keys: the same bits, a faster loop on the CPU
-        # (the init and the finisher keep JAX's keys, where unrolling costs more compile time than it saves)
-        run = lambda k, s, n: renderer.run(target, unrolled_keys(k), s, n)  # noqa: E731
-        chunk_fn = jax.jit(run).lower(key_run, state_shape, n_spec).compile(compiler_options())
-        jax.block_until_ready(chunk_fn(warm_key, warm_state, jnp.asarray(1, jnp.int32)))
-    if finishes:
-        finisher = _finisher(renderer, target, lanes, state_shape, warm_key, warm_state)
+    new_init = state is None and programs.init is None
+    new_chunk = not done and programs.chunk is None
+    new_finisher = finishes and programs.finisher is None
+    if new_init:
+        programs.init = jax.jit(lambda k: renderer.init(target, k, lanes)).lower(key_init).compile(compiler_options())
+    init_fn = programs.init
+    # One throwaway call of each newly compiled function, so that a target's own first-call work
+    # (e.g. Dr.Jit recording its kernels for these batch sizes) is paid here, outside the budget.
+    warm_key = jax.random.fold_in(key_init, 1)
+    if new_init or new_chunk or new_finisher:
+        warm_state = init_fn(warm_key) if state is None else state
+    if new_chunk:
+        programs.chunk = _compile_chunk(renderer, target, key_run, state_shape, warm_key, warm_state)
+    if new_finisher:
+        programs.finisher = _finisher(renderer, target, lanes, state_shape, warm_key, warm_state)
+    chunk_fn, finisher = programs.chunk, programs.finisher
     compile_seconds = time.perf_counter() - t0
 
     start = time.perf_counter()
@@ -312,6 +319,64 @@ def render(
         finishing_steps=finishing,
         finishing_seconds=finishing_seconds,
     )
+
+
+@dataclasses.dataclass
+class _Programs:
+    """The compiled programs of one render set-up (renderer, target, lanes, key and state
+    shapes), each compiled when first needed. `target` is held so that its `id` stays its own."""
+
+    target: Any
+    init: Any = None
+    chunk: Any = None
+    finisher: Any = None
+
+
+#: Set-ups whose programs are kept, most recently used last. Each keeps its target alive
+#: (the programs call back into it), so only a few are kept.
+_PROGRAMS: OrderedDict[tuple, _Programs] = OrderedDict()
+_PROGRAMS_KEPT = 4
+_PROGRAMS_LOCK = threading.Lock()
+
+
+def _programs(renderer, target, lanes, key, state_shape) -> _Programs:
+    """The programs compiled for this set-up by an earlier `render` in this process, or an
+    empty entry to compile them into.
+
+    Renders of one scene are often repeated (realisations of `render-compare`, a resumed
+    checkpoint, renders of growing budgets), and each compilation takes seconds. The
+    set-up is matched by the target's identity (a target is taken not to change between
+    renders), the renderer's value, the lanes, the key's type and the state's shapes; a
+    renderer that cannot be hashed gets fresh programs every time.
+    """
+    leaves, treedef = jax.tree.flatten(state_shape)
+    try:
+        setup = (
+            id(target), renderer, lanes, key.shape, str(key.dtype), treedef, tuple((x.shape, str(x.dtype)) for x in leaves),
+            jax.default_backend(), tuple(sorted(compiler_options().items())),
+        )
+        hash(setup)
+    except TypeError:  # e.g. a renderer with an array field
+        return _Programs(target)
+    with _PROGRAMS_LOCK:
+        found = _PROGRAMS.get(setup)
+        if found is None or found.target is not target:
+            found = _PROGRAMS[setup] = _Programs(target)
+        _PROGRAMS.move_to_end(setup)
+        while len(_PROGRAMS) > _PROGRAMS_KEPT:
+            _PROGRAMS.popitem(last=False)
+    return found
+
+
+def _compile_chunk(renderer, target, key_run, state_shape, warm_key, warm_state):
+    """The chunk program (`renderer.run` for a traced number of steps), called once here."""
+    # the chunk's draws on unrolled Threefry keys: the same bits, a faster loop on the CPU
+    # (the init and the finisher keep JAX's keys, where unrolling costs more compile time than it saves)
+    run = lambda k, s, n: renderer.run(target, unrolled_keys(k), s, n)  # noqa: E731
+    n_spec = jax.ShapeDtypeStruct((), jnp.int32)
+    chunk_fn = jax.jit(run).lower(key_run, state_shape, n_spec).compile(compiler_options())
+    jax.block_until_ready(chunk_fn(warm_key, warm_state, jnp.asarray(1, jnp.int32)))
+    return chunk_fn
 
 
 #: Finishing evaluates `max(_FINISHING_SLOTS, lanes // _FINISHING_SHARE)` points per step (at most `lanes`).

@@ -372,6 +372,44 @@ def test_a_finishing_step_moves_only_open_tours(renderer):
     assert np.all((moves == 0) | (moves > np.array([1, 5, 6, 12])))
 
 
+@pytest.mark.filterwarnings("ignore::restore.UnreliableEstimateWarning")  # few tours in a short render
+def test_a_repeated_render_reuses_its_compiled_programs():
+    """A second render of the same set-up (the same target object, an equal renderer, the
+    same lanes) compiles nothing and gives the image a first render gives; other lanes or
+    another renderer compile their own programs."""
+    compiled = []
+
+    def listen(event, duration, **kwargs):
+        if event.endswith("backend_compile_duration"):
+            compiled.append(kwargs.get("fun_name"))
+
+    target = AnalyticImage.default(dim=3, resolution=(8, 8), num_bumps=2)  # a set-up of this test alone
+
+    def run(renderer, lanes=128, seed=0):
+        compiled.clear()
+        result = rr.render(
+            target, renderer, key=jax.random.key(seed), evaluations=renderer.init_cost(lanes) + 30 * lanes,
+            lanes=lanes, chunk=10, progress=False,
+        )
+        return result, sum("<lambda>" in str(f) for f in compiled)
+
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    try:
+        first, fresh = run(rr.MetropolisRestore(tour_length=8, n_bootstrap=1000))
+        again, reused = run(rr.MetropolisRestore(tour_length=8, n_bootstrap=1000))  # an equal renderer
+        other_key, _ = run(rr.MetropolisRestore(tour_length=8, n_bootstrap=1000), seed=1)
+        _, other_lanes = run(rr.MetropolisRestore(tour_length=8, n_bootstrap=1000), lanes=64)
+        _, other_renderer = run(rr.MetropolisRestore(tour_length=4, n_bootstrap=1000))
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listen)
+    assert fresh == 3 and first.finishing_steps > 0  # the start, the chunk and the finisher
+    assert reused == 0 and again.compile_seconds < first.compile_seconds / 5
+    np.testing.assert_array_equal(again.image, first.image)
+    assert again.statistics == first.statistics and again.finishing_steps == first.finishing_steps
+    assert not np.array_equal(other_key.image, first.image)
+    assert other_lanes == 3 and other_renderer == 3
+
+
 def test_driver_time_budget():
     result = rr.render(TARGET, rr.UniformSampler(), key=jax.random.key(2), seconds=0.3, lanes=256, progress=True)
     assert result.seconds >= 0.3 and result.seconds < 5 and result.steps > 0
