@@ -43,7 +43,7 @@ class Choice(NamedTuple):
     candidates: tuple[Candidate, ...]
 
 
-def _fit(family: str, x, w, k: int, seed: int, init_means=None) -> Fit:
+def _fit(family: str, x, w, k: int, seed: int) -> Fit:
     if family == "product":
         return fit_product(x, w, k, seed=seed)
     covariance = "diagonal" if family.startswith("diagonal") else "full"

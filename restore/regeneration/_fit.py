@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Callable
 from typing import Literal, NamedTuple
 
 import jax.numpy as jnp
@@ -39,21 +40,42 @@ PRIOR_SHARE = 1e-2
 
 
 class Fit(NamedTuple):
-    """A fitted regeneration distribution and its NumPy log density (for scoring)."""
+    """A fitted regeneration distribution and its NumPy log density (for scoring).
 
-    distribution: object
-    log_prob: object  # callable: (n, d) float64 -> (n,)
+    The JAX distribution is built when `distribution` is first read: a candidate that is
+    only scored never builds it (a `Mixture` traces its components' samplers when built).
+    """
+
+    build: Callable[[], object]  # makes the distribution, once
+    log_prob: Callable[[np.ndarray], np.ndarray]  # (n, d) float64 -> (n,)
     family: str
     num_components: int
     cost: int  # multiply-adds of one log density: what each Restore step pays for it
 
+    @property
+    def distribution(self):
+        """The fitted distribution (a `restore.regeneration` distribution)."""
+        return self.build()
+
 
 def logsumexp(a: np.ndarray, axis: int) -> np.ndarray:
     """`log sum exp` along `axis` (a lean version of SciPy's, which dominated the fits' time)."""
+    return normalise(a, axis)[0]
+
+
+def normalise(a: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray]:
+    """`(log sum exp a, exp(a - log sum exp a))` along `axis`, with one exponential of `a`:
+    the log normaliser of the components' joint log densities and their responsibilities.
+
+    The fits keep components on the first axes and draws on the last, so that the sums over
+    the few components run elementwise across draws, not over short rows.
+    """
     top = np.max(a, axis=axis, keepdims=True)
     top = np.where(np.isfinite(top), top, 0.0)
-    with np.errstate(divide="ignore"):
-        return np.log(np.sum(np.exp(a - top), axis=axis)) + np.squeeze(top, axis=axis)
+    e = np.exp(a - top)
+    total = np.sum(e, axis=axis, keepdims=True)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.squeeze(np.log(total) + top, axis=axis), e / total
 
 
 def single_threaded(fit):
@@ -99,20 +121,20 @@ def _student_const(df: float, d: int) -> float:
 
 
 def _component_terms(x, means, chol_or_scales, df, diagonal: bool):
-    """`log p_k(x_i)` `(n, K)` and the squared Mahalanobis distances `(n, K)`."""
+    """`log p_k(x_i)` `(K, n)` and the squared Mahalanobis distances `(K, n)`."""
     n, d = x.shape
     if diagonal:
-        inv = 1.0 / chol_or_scales
-        # |x - m|^2 / s^2 expanded, so no (n, K, d) array is formed
-        z2 = (x**2) @ (inv**2).T - 2.0 * x @ (means * inv**2).T + np.sum((means * inv) ** 2, axis=1)
+        inv2 = 1.0 / chol_or_scales**2
+        # |x - m|^2 / s^2 expanded, so no (K, n, d) array is formed
+        z2 = inv2 @ (x**2).T - 2.0 * (means * inv2) @ x.T + np.sum(means**2 * inv2, axis=1)[:, None]
         z2 = np.maximum(z2, 0.0)
         log_det = np.sum(np.log(chol_or_scales), axis=1)
     else:
         inv = np.linalg.inv(chol_or_scales)  # (K, d, d), lower triangular
-        k = means.shape[0]
-        z = (x @ inv.transpose(2, 0, 1).reshape(d, k * d)).reshape(n, k, d) - np.einsum("kij,kj->ki", inv, means)[None]
-        z2 = np.sum(z**2, axis=2)
+        z = inv @ x.T - (inv @ means[:, :, None])  # (K, d, n)
+        z2 = np.sum(z**2, axis=1)
         log_det = np.sum(np.log(np.diagonal(chol_or_scales, axis1=1, axis2=2)), axis=1)
+    log_det = log_det[:, None]
     if df is None:
         return -0.5 * z2 - log_det - 0.5 * d * math.log(2 * math.pi), z2
     return _student_const(df, d) - log_det - 0.5 * (df + d) * np.log1p(z2 / df), z2
@@ -162,26 +184,27 @@ def fit_mixture(
     covs = np.broadcast_to(overall / k ** (2.0 / d), (k, d, d)).copy()
     total = w.sum()
     previous = -np.inf
+    xt, x2 = x.T, x**2
     for _ in range(iterations):
         factor = np.sqrt(np.diagonal(covs, axis1=1, axis2=2)) if diagonal else np.linalg.cholesky(covs)
         logp, z2 = _component_terms(x, means, factor, df, diagonal)
-        joint = np.log(mix) + logp
-        norm = logsumexp(joint, axis=1)
-        current = float(np.sum(w * norm) / total)
-        r = np.exp(joint - norm[:, None]) * w[:, None]  # weighted responsibilities
-        u = np.ones_like(r) if df is None else (df + d) / (df + z2)  # latent precision scales
-        nk = r.sum(axis=0)
+        norm, r = normalise(np.log(mix)[:, None] + logp, axis=0)
+        current = float(w @ norm / total)
+        r *= w  # weighted responsibilities (K, n)
+        nk = r.sum(axis=1)
         mix = (nk + PRIOR_DRAWS / k) / (total + PRIOR_DRAWS)
-        ru = r * u
-        means = (ru.T @ x) / np.maximum(ru.sum(axis=0), 1e-300)[:, None]
+        ru = r if df is None else r * ((df + d) / (df + z2))  # times the latent precision scales
+        ru_sum = ru.sum(axis=1)
+        ru_x = ru @ x
+        means = ru_x / np.maximum(ru_sum, 1e-300)[:, None]
         if diagonal:  # E[r u (x - m)^2] expanded
-            spread = ru.T @ x**2 - 2.0 * means * (ru.T @ x) + means**2 * ru.sum(axis=0)[:, None]
+            spread = ru @ x2 - 2.0 * means * ru_x + means**2 * ru_sum[:, None]
             covs = np.zeros((k, d, d))
             idx = np.arange(d)
             covs[:, idx, idx] = (np.maximum(spread, 0.0) + PRIOR_DRAWS * np.diag(prior_cov)) / (nk + PRIOR_DRAWS)[:, None]
         else:
-            scatter = np.stack([(x * ru[:, j : j + 1]).T @ x for j in range(k)])
-            scatter -= np.einsum("ki,kj,k->kij", means, means, ru.sum(axis=0))
+            scatter = np.stack([(xt * ru[j]) @ x for j in range(k)])
+            scatter -= np.einsum("ki,kj,k->kij", means, means, ru_sum)
             covs = (scatter + PRIOR_DRAWS * prior_cov) / (nk + PRIOR_DRAWS)[:, None, None]
             covs = 0.5 * (covs + np.swapaxes(covs, 1, 2))
         if current - previous < tolerance:
@@ -194,23 +217,26 @@ def _mixture_fit(mix, means, covs, df, diagonal: bool) -> Fit:
     k, d = means.shape
     dtype = jnp.result_type(float)
     if diagonal:
-        scales = np.sqrt(np.diagonal(covs, axis1=1, axis2=2))
-        dist = DiagonalMixture(jnp.asarray(mix, dtype), jnp.asarray(means, dtype), jnp.asarray(scales, dtype), df)
-        factor = scales
+        factor = np.sqrt(np.diagonal(covs, axis1=1, axis2=2))
         cost = k * d
     else:
-        make = (lambda m, c: Gaussian(m, c)) if df is None else (lambda m, c: StudentT(m, c, df))
-        dist = Mixture([make(jnp.asarray(m, dtype), jnp.asarray(c, dtype)) for m, c in zip(means, covs)], jnp.asarray(mix, dtype))
         factor = np.linalg.cholesky(covs)
         cost = k * d * d
-    log_mix = np.log(mix)
+
+    @functools.cache
+    def build():
+        if diagonal:
+            return DiagonalMixture(jnp.asarray(mix, dtype), jnp.asarray(means, dtype), jnp.asarray(factor, dtype), df)
+        make = (lambda m, c: Gaussian(m, c)) if df is None else (lambda m, c: StudentT(m, c, df))
+        return Mixture([make(jnp.asarray(m, dtype), jnp.asarray(c, dtype)) for m, c in zip(means, covs)], jnp.asarray(mix, dtype))
+    log_mix = np.log(mix)[:, None]
 
     def log_prob(y):
         logp, _ = _component_terms(np.asarray(y, np.float64), means, factor, df, diagonal)
-        return logsumexp(log_mix + logp, axis=1)
+        return logsumexp(log_mix + logp, axis=0)
 
     family = ("diagonal" if diagonal else "full") + ("" if df is None else f" student-t(df={df:g})")
-    return Fit(dist, log_prob, family, k, int(cost))
+    return Fit(build, log_prob, family, k, int(cost))
 
 
 @single_threaded
@@ -238,28 +264,31 @@ def fit_product(draws, weights, num_components: int, *, seed: int = 0, iteration
     mix = np.full((d, k), 1.0 / k)
     prior_var = PRIOR_SHARE * var[:, None]
     previous = -np.inf
+    xt = np.ascontiguousarray(x.T)[:, None, :]  # (d, 1, n): coordinates, components, draws
+    x2 = xt[:, 0, :, None] ** 2  # (d, n, 1)
     for _ in range(iterations):
-        z = (x[:, :, None] - means[None]) / scales[None]
-        joint = np.log(mix)[None] - 0.5 * z**2 - np.log(scales)[None] - 0.5 * math.log(2 * math.pi)
-        norm = logsumexp(joint, axis=2)  # (n, d)
-        current = float(np.sum(w[:, None] * norm) / total)
-        r = np.exp(joint - norm[..., None]) * w[:, None, None]  # (n, d, k)
-        nk = r.sum(axis=0)
+        z = (xt - means[:, :, None]) / scales[:, :, None]
+        joint = (np.log(mix) - np.log(scales) - 0.5 * math.log(2 * math.pi))[:, :, None] - 0.5 * z**2
+        norm, r = normalise(joint, axis=1)  # (d, n), (d, k, n)
+        current = float(np.sum(norm @ w) / total)
+        r *= w  # weighted responsibilities
+        nk = r.sum(axis=2)
         mix = (nk + PRIOR_DRAWS / k) / (total + PRIOR_DRAWS)
-        means = (r * x[:, :, None]).sum(axis=0) / np.maximum(nk, 1e-300)
-        spread = (r * x[:, :, None] ** 2).sum(axis=0) - means**2 * nk
+        means = (r @ xt[:, 0, :, None])[..., 0] / np.maximum(nk, 1e-300)
+        spread = (r @ x2)[..., 0] - means**2 * nk
         scales = np.sqrt((np.maximum(spread, 0.0) + PRIOR_DRAWS * prior_var) / (nk + PRIOR_DRAWS))
         if current - previous < tolerance * d:
             break
         previous = current
     dtype = jnp.result_type(float)
-    dist = ProductMixture(jnp.asarray(mix, dtype), jnp.asarray(means, dtype), jnp.asarray(scales, dtype))
-    log_mix = np.log(mix)
+    build = functools.cache(
+        lambda: ProductMixture(jnp.asarray(mix, dtype), jnp.asarray(means, dtype), jnp.asarray(scales, dtype))
+    )
+    offset = (np.log(mix) - np.log(scales) - 0.5 * math.log(2 * math.pi))[:, :, None]
 
     def log_prob(y):
-        y = np.asarray(y, np.float64)
-        z = (y[:, :, None] - means[None]) / scales[None]
-        terms = log_mix[None] - 0.5 * z**2 - np.log(scales)[None] - 0.5 * math.log(2 * math.pi)
-        return logsumexp(terms, axis=2).sum(axis=1)
+        yt = np.asarray(y, np.float64).T[:, None, :]
+        z = (yt - means[:, :, None]) / scales[:, :, None]
+        return logsumexp(offset - 0.5 * z**2, axis=1).sum(axis=0)
 
-    return Fit(dist, log_prob, "product", k, int(k * d))
+    return Fit(build, log_prob, "product", k, int(k * d))
