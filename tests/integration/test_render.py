@@ -17,6 +17,7 @@ from scipy import stats
 import restore.render as rr
 from restore.local import KelemenMutation, TorusMALA, WrappedGaussianMutation, metropolis_accept
 from restore.regeneration import AbstractRegeneration
+from restore.render._driver import _programs
 from restore.render._renderer import host_params
 from targets import AnalyticImage
 
@@ -375,8 +376,8 @@ def test_a_finishing_step_moves_only_open_tours(renderer):
 @pytest.mark.filterwarnings("ignore::restore.UnreliableEstimateWarning")  # few tours in a short render
 def test_a_repeated_render_reuses_its_compiled_programs():
     """A second render of the same set-up (the same target object, an equal renderer, the
-    same lanes) compiles nothing and gives the image a first render gives; other lanes or
-    another renderer compile their own programs."""
+    same lanes) compiles nothing and gives the image a first render gives; another target,
+    other lanes or another renderer get programs of their own."""
     compiled = []
 
     def listen(event, duration, **kwargs):
@@ -384,8 +385,9 @@ def test_a_repeated_render_reuses_its_compiled_programs():
             compiled.append(kwargs.get("fun_name"))
 
     target = AnalyticImage.default(dim=3, resolution=(8, 8), num_bumps=2)  # a set-up of this test alone
+    lanes = 128
 
-    def run(renderer, lanes=128, seed=0):
+    def run(renderer, seed=0):
         compiled.clear()
         result = rr.render(
             target, renderer, key=jax.random.key(seed), evaluations=renderer.init_cost(lanes) + 30 * lanes,
@@ -398,8 +400,6 @@ def test_a_repeated_render_reuses_its_compiled_programs():
         first, fresh = run(rr.MetropolisRestore(tour_length=8, n_bootstrap=1000))
         again, reused = run(rr.MetropolisRestore(tour_length=8, n_bootstrap=1000))  # an equal renderer
         other_key, _ = run(rr.MetropolisRestore(tour_length=8, n_bootstrap=1000), seed=1)
-        _, other_lanes = run(rr.MetropolisRestore(tour_length=8, n_bootstrap=1000), lanes=64)
-        _, other_renderer = run(rr.MetropolisRestore(tour_length=4, n_bootstrap=1000))
     finally:
         jax.monitoring.unregister_event_duration_listener(listen)
     assert fresh == 3 and first.finishing_steps > 0  # the start, the chunk and the finisher
@@ -407,7 +407,17 @@ def test_a_repeated_render_reuses_its_compiled_programs():
     np.testing.assert_array_equal(again.image, first.image)
     assert again.statistics == first.statistics and again.finishing_steps == first.finishing_steps
     assert not np.array_equal(other_key.image, first.image)
-    assert other_lanes == 3 and other_renderer == 3
+    # what makes a set-up its own: the entry of the renders above, found again, and new ones
+    renderer, key = rr.MetropolisRestore(tour_length=8, n_bootstrap=1000), jax.random.key(0)
+
+    def entry(renderer=renderer, target=target, lanes=lanes):
+        shape = jax.eval_shape(lambda k: renderer.init(target, k, lanes), key)
+        return _programs(renderer, target, lanes, key, shape)
+
+    assert entry().chunk is not None and entry() is entry()
+    equal_target = AnalyticImage.default(dim=3, resolution=(8, 8), num_bumps=2)
+    others = [entry(lanes=64), entry(renderer=rr.MetropolisRestore(tour_length=4, n_bootstrap=1000)), entry(target=equal_target)]
+    assert all(other.chunk is None for other in others)
 
 
 def test_driver_time_budget():
