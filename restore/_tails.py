@@ -146,6 +146,10 @@ def add_records(tails: TourTails, pending: Pending, records: TourRecords) -> tup
     )
 
 
+#: `settle` merges this many numbers (lanes x components x candidates) at a time at most.
+SETTLE_BLOCK = 2**18
+
+
 def settle(tails: TourTails, pending: Pending) -> TourTails:
     """Each lane's top sets with the pending records merged in (the sets, when none are pending).
 
@@ -154,6 +158,12 @@ def settle(tails: TourTails, pending: Pending) -> TourTails:
     milliseconds per chunk for 512 lanes). Only the scores (durations, `|F_j|`, weights)
     are concatenated and partially sorted; the kept integrals are then gathered from the
     sets or the buffers by flat indices, without copying the integrals whole.
+
+    Lanes are merged a block at a time (each lane's merge is its own), so that the
+    temporary arrays stay a few megabytes: with temporaries of tens of megabytes, the
+    merge at the end of the README's autosample run (1024 lanes, 13 components, 64 per
+    set) took 0.45-0.7 s of CPU time in the sampling process, against 0.05-0.15 s for the
+    same merge repeated; in blocks it takes 0.07 s there. The sets are bit for bit the same.
     """
     depth = tails.duration.shape[1]
     if depth == 0 or pending.duration is None:
@@ -161,6 +171,20 @@ def settle(tails: TourTails, pending: Pending) -> TourTails:
     assert pending.integral is not None and pending.log_importance_weight is not None
     assert pending.tours is not None and pending.starts is not None
     width = int(max(np.max(pending.tours), np.max(pending.starts)))  # the slots some lane used
+    lanes, _, size = pending.integral.shape
+    block = max(1, SETTLE_BLOCK // (size * (depth + width)))
+    if block >= lanes:
+        return _settle_lanes(tails, pending, width)
+    blocks = [slice(start, start + block) for start in range(0, lanes, block)]
+    parts = [_settle_lanes(TourTails(*(a[b] for a in tails)), Pending(*(a[b] for a in pending if a is not None)), width) for b in blocks]
+    return TourTails(*(np.concatenate(arrays) for arrays in zip(*parts)))
+
+
+def _settle_lanes(tails: TourTails, pending: Pending, width: int) -> TourTails:
+    """`settle` of some lanes, over the first `width` slots of their buffers."""
+    depth = tails.duration.shape[1]
+    assert pending.integral is not None and pending.log_importance_weight is not None
+    assert pending.tours is not None and pending.starts is not None and pending.duration is not None
     lanes, buffer, size = pending.integral.shape
     lane = np.arange(lanes)[:, None]
     slots = np.arange(width)[None, :]

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import restore
+import restore._tails
 from restore._pareto import k_hat_limit, pareto_k, pareto_k_log, tail_length
 from restore._tails import Pending, add_records, duration_k, importance_k, init_tails, residual_k, settle
 from restore._tour_records import TourRecords
@@ -159,10 +160,12 @@ def test_lanes_subsets_and_merges_keep_their_diagnostics(good):
     assert float(merged.normalising_constant().k_hat) == float(good.normalising_constant().k_hat)
 
 
-def test_records_merged_in_batches_give_the_exact_top_sets():
+@pytest.mark.parametrize("lanes_per_block", [None, 1, 4])
+def test_records_merged_in_batches_give_the_exact_top_sets(lanes_per_block, monkeypatch):
     """Chunks of records wait on the host and join the sets in batches: every set equals the
     brute-force top set of all the lane's tours, and a merge per chunk gives the same sets.
-    A chunk whose result is dropped (interrupted) writes into the buffers but leaves no trace."""
+    A chunk whose result is dropped (interrupted) writes into the buffers but leaves no trace.
+    Merged a few lanes at a time (`lanes_per_block`), the sets are bit for bit those of one merge."""
     lanes, size, depth, slots = 6, 2, 8, 5
     rng = np.random.default_rng(3)
     tails, pending, each = init_tails(lanes, size, depth), Pending(), init_tails(lanes, size, depth)
@@ -184,7 +187,13 @@ def test_records_merged_in_batches_give_the_exact_top_sets():
             tours[lane] += [(duration[lane, r], *integral[lane, r]) for r in range(count[lane])]
             weights[lane] += [w for w in weight[lane, : starts[lane]] if not np.isnan(w)]
     assert merges >= 2 and pending.tours.sum() > 0  # merged in batches, and some records still wait
+    whole = settle(tails, pending)
+    if lanes_per_block is not None:  # SETTLE_BLOCK counts lanes x components x candidates
+        width = int(max(pending.tours.max(), pending.starts.max()))
+        monkeypatch.setattr(restore._tails, "SETTLE_BLOCK", lanes_per_block * size * (depth + width))
     final = settle(tails, pending)
+    for blocked, one in zip(final, whole, strict=True):
+        np.testing.assert_array_equal(blocked, one)
     for lane in range(lanes):
         rows = np.asarray(tours[lane])
         longest = rows[np.argsort(rows[:, 0])[::-1][:depth]]
