@@ -41,10 +41,10 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, PRNGKeyArray
 
-from ._compile import jit
 from ._jump_restore import JumpRestore
 from ._pareto import K_HAT_LIMIT
 from ._progress import console_note
+from ._random import distribution_draws
 from ._result import SampleResult
 from ._sample import _draw_capacity, _thinning, sample
 from ._seeding import seed_draws
@@ -231,16 +231,8 @@ def typical_scale(regeneration: AbstractRegeneration) -> np.ndarray:
         tril = getattr(regeneration, name, None)
         if tril is not None:
             return np.sqrt(np.sum(np.asarray(tril) ** 2, axis=1))
-    draws = np.asarray(_draw(regeneration, jax.random.key(0), 2048))
+    draws = np.asarray(distribution_draws(regeneration, jax.random.key(0), 2048))
     return np.std(draws, axis=0)
-
-
-@jit(filtered=True)
-def _draw(distribution, key: PRNGKeyArray, num: int) -> Array:
-    """`num` draws of `distribution`, compiled as restore compiles its programs: drawn eagerly,
-    JAX compiled its own sampling program at its default optimisation level (a Gaussian's
-    starts for autosample's seeding chains took 0.7 s to compile)."""
-    return distribution.sample(key, (num,))
 
 
 def _weighted_median(values: np.ndarray, weights: np.ndarray) -> np.ndarray:
@@ -355,7 +347,7 @@ def autosample(
 
     key_seed, key_starts, key_stages, key_final = jax.random.split(key, 4)
     clock = time.perf_counter()
-    seeds = seed_draws(logdensity, _draw(starts_from, key_starts, num_lanes), key_seed, num_steps=seed_steps)
+    seeds = seed_draws(logdensity, distribution_draws(starts_from, key_starts, num_lanes), key_seed, num_steps=seed_steps)
     seed_report = StageReport(
         0, "seed", "chains", num_lanes, seeds.evaluations, time.perf_counter() - clock,
         math.nan, math.nan, math.nan, math.nan, math.nan, False,

@@ -28,6 +28,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
 from ._multistart import ScalarFn, check_box, check_starts, default_solver, search, solve
+from ._random import uniform_draws
 from ._validation import check_integer, check_scalar_fn
 
 
@@ -269,7 +270,7 @@ def rate_bound(
     safety = float(safety)
     if not (math.isfinite(safety) and safety >= 1):
         raise ValueError(f"`safety` must be finite and >= 1, got {safety}.")
-    draws = np.asarray(jax.random.uniform(key, (int(num_starts), d), lower.dtype))
+    draws = np.asarray(uniform_draws(key, (int(num_starts), d), lower.dtype))
     lo, hi = np.asarray(lower), np.asarray(upper)
     starts = np.concatenate([lo + (hi - lo) * draws, (0.5 * (lo + hi))[None]])
     starts = jnp.asarray(np.clip(starts, lo, hi))

@@ -7,12 +7,14 @@ from pathlib import Path
 from typing import NamedTuple
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from ._estimates import Estimate
 from ._io import matplotlib_for, save_and_close
 from ._jump_restore import JumpRestore
 from ._mixture_mh import MixtureMH
+from ._random import normal_draws
 from ._sample import sample
 from .local import RandomWalk
 from .regeneration import laplace_mixture
@@ -53,7 +55,7 @@ def run_demo(
     target = well_separated_gaussian_mixture(dim, 3, separation=8.0)
     key = jax.random.key(seed)
     k_starts, k_restore, k_mh = jax.random.split(key, 3)
-    starts = 6.0 * jax.random.normal(k_starts, (64, dim))
+    starts = 6.0 * normal_draws(k_starts, (64, dim), jnp.result_type(float))
     nu = laplace_mixture(target.logdensity, starts, tails="student_t", df=5.0, weights="equal")
     local = RandomWalk(2.38 / np.sqrt(dim))
     one_hot = lambda x: jax.nn.one_hot(target.assign_mode(x), target.num_modes, dtype=x.dtype)  # noqa: E731
