@@ -60,7 +60,9 @@ class Fit(NamedTuple):
 
 def logsumexp(a: np.ndarray, axis: int) -> np.ndarray:
     """`log sum exp` along `axis` (a lean version of SciPy's, which dominated the fits' time)."""
-    return normalise(a, axis)[0]
+    top, _, total = _shifted_exp(a, axis)
+    with np.errstate(divide="ignore"):
+        return np.squeeze(np.log(total) + top, axis=axis)
 
 
 def normalise(a: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray]:
@@ -70,12 +72,17 @@ def normalise(a: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray]:
     The fits keep components on the first axes and draws on the last, so that the sums over
     the few components run elementwise across draws, not over short rows.
     """
+    top, e, total = _shifted_exp(a, axis)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.squeeze(np.log(total) + top, axis=axis), e / total
+
+
+def _shifted_exp(a: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The largest finite entry along `axis` (0 if none), `exp(a - top)` and its sum."""
     top = np.max(a, axis=axis, keepdims=True)
     top = np.where(np.isfinite(top), top, 0.0)
     e = np.exp(a - top)
-    total = np.sum(e, axis=axis, keepdims=True)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.squeeze(np.log(total) + top, axis=axis), e / total
+    return top, e, np.sum(e, axis=axis, keepdims=True)
 
 
 def single_threaded(fit):
