@@ -360,7 +360,7 @@ def _programs(renderer, target, lanes, key, state_shape) -> _Programs:
         return _Programs(target)
     with _PROGRAMS_LOCK:
         found = _PROGRAMS.get(setup)
-        if found is None or found.target is not target:
+        if found is None:  # an entry holds its target, so an id in the table is that target's
             found = _PROGRAMS[setup] = _Programs(target)
         _PROGRAMS.move_to_end(setup)
         while len(_PROGRAMS) > _PROGRAMS_KEPT:
