@@ -200,6 +200,18 @@ def _add_events(tally, target, info, counted, log_kill_rate, moves, starting, ev
     )
 
 
+def lane_keys(key: PRNGKeyArray, n: int) -> PRNGKeyArray:
+    """The `n` lanes' keys of a step, `split(key, n)`, computed once (an optimisation barrier).
+
+    Without the barrier XLA fuses the split into the kernel that splits each lane's key into
+    its step's five keys, and hashes the lane's key again for every word of those: a
+    Metropolis Restore step of 2048 lanes took 1.23 times as long (door_gap, 256x256). The
+    bits are the same. (`restore.sample`'s loop, which derives its lane keys by `fold_in`,
+    showed no such gain, so the core step has no barrier.)
+    """
+    return jax.lax.optimization_barrier(jax.random.split(key, n))
+
+
 def _end_tours(state, duration: Float[Array, " N"], ended: Bool[Array, " N"]) -> dict[str, Any]:
     """The fields of `state` after the counted tours that `ended` (of `duration`, their
     events up to the last one included) are added to the lanes' sets of longest tours and
@@ -298,12 +310,19 @@ class AbstractPSSRestore(AbstractRenderer):
             )
         return self.kernel
 
-    def sampler(self, target, log_rate: Float[Array, ""]) -> JumpRestore:
-        """The core sampler this renderer runs on `target`, with `log c = log_rate`."""
-        return JumpRestore(
-            pss_logdensity(target), self.local_kernel(target), self.regeneration(target), log_rate=log_rate,
-            has_aux=True,
-        )
+    def sampler(self, target, params: RestoreParams) -> JumpRestore:
+        """The core sampler this renderer runs on `target`, with `c = params.rate`.
+
+        With `c = Z_hat / L` the sampler is made from its tour length `L` and calibrated to
+        `Z_hat` (the same `log c`, bit for bit), so it knows that about `1 / (1 + L)` of its
+        events are kills: at `L = 1` it draws the next tours' starts for all lanes at once,
+        which costs less than gathering the killed lanes (`JumpRestore.step_lanes`).
+        """
+        logdensity, kernel, regeneration = pss_logdensity(target), self.local_kernel(target), self.regeneration(target)
+        if self.rate is None:
+            sampler = JumpRestore(logdensity, kernel, regeneration, tour_length=self.tour_length, has_aux=True)
+            return sampler.calibrated_to(jnp.log(params.z_bootstrap))
+        return JumpRestore(logdensity, kernel, regeneration, log_rate=params.log_rate, has_aux=True)
 
     def init(self, target, key: PRNGKeyArray, lanes: int) -> RestoreRenderState:
         check_target(target, needs_gradient=self.uses_gradient)
@@ -321,7 +340,7 @@ class AbstractPSSRestore(AbstractRenderer):
         else:
             log_rate = jnp.asarray(math.log(self.rate), jnp.float32)
         params = RestoreParams(jnp.exp(log_rate), log_rate, z, z_err, jnp.asarray(lanes, jnp.float32))
-        sampler = self.sampler(target, log_rate)
+        sampler = self.sampler(target, params)
         keys = jax.random.split(k_start, lanes)
         if self.start == "uniform":  # tour starts, drawn by the sampler
             states = jax.vmap(sampler.init)(keys)
@@ -344,9 +363,9 @@ class AbstractPSSRestore(AbstractRenderer):
             )
 
     def step(self, target, key: PRNGKeyArray, state: RestoreRenderState) -> RestoreRenderState:
-        sampler = self.sampler(target, state.params.log_rate)
+        sampler = self.sampler(target, state.params)
         n, moves, counted = state.tour_moves.shape[0], state.tour_moves, state.in_tour
-        lanes, info = sampler.step_lanes(jax.random.split(key, n), state.lanes)
+        lanes, info = sampler.step_lanes(lane_keys(key, n), state.lanes)
         tally = _add_events(
             state.tally, target, info, counted, state.lanes.log_kill_rate, moves, state.starting, jnp.int32(n)
         )
@@ -373,7 +392,7 @@ class AbstractPSSRestore(AbstractRenderer):
         first `slots` open lanes."""
         if not self.speculates:
             return self._step_open_lanes(target, key, state, slots)
-        sampler = self.sampler(target, state.params.log_rate)
+        sampler = self.sampler(target, state.params)
         guess = (state.tour_accepted + 1.0) / (state.tour_moves + 2.0)  # this tour's acceptance so far
         run = speculative_steps(sampler, key, state.lanes, state.in_tour, slots, guess)
         moves = state.tour_moves[run.lane] + run.level

@@ -186,6 +186,22 @@ def test_negative_control_constant_kill_rate_is_rejected():
     assert p_value < 1e-6, f"the wrong kill rate passed: p = {p_value:.2g}, max |t| = {t_max:.1f}"
 
 
+def test_restore_renders_run_a_sampler_that_knows_its_tour_length():
+    """With `c = Z_hat / L` the core sampler is made from `L` (so at `L = 1` it draws the next
+    tours' starts for all lanes at once) and has the render's `log c` bit for bit; with `c`
+    given it has that `c` and no tour length."""
+    cases = [
+        (rr.MetropolisRestore(KelemenMutation(), tour_length=1.0), (1.0,), 0.5),
+        (rr.MetropolisRestore(KelemenMutation(), rate=0.5), None, None),
+    ]
+    for renderer, length, kill_share in cases:
+        params = renderer.init(TARGET, jax.random.key(0), 64).params
+        sampler = renderer.sampler(TARGET, params)
+        assert sampler.tour_length == length
+        assert sampler._kill_fraction() == kill_share
+        assert np.asarray(sampler.log_rate).tobytes() == np.asarray(params.log_rate).tobytes()
+
+
 def test_open_tours_from_a_uniform_start_show_their_finite_run_bias():
     """Starting every lane at a tour start (uniform draw) and stopping at the budget leaves a
     bias of order (bright-region sojourn) / (steps per lane): long tours in bright bumps are
