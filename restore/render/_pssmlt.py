@@ -22,6 +22,7 @@ from ._renderer import (
     bootstrap_size,
     check_count,
     check_lanes,
+    lane_keys,
     ratio,
     resample,
     xp_of,
@@ -147,11 +148,11 @@ class PSSMLT(AbstractRenderer):
         x, tally = state.point, state.tally
         n, d = x.position.shape
         kernel = small_step(self.mutation, target)
-        small = jax.vmap(lambda k, p: kernel.propose(k, p, None)[0])(jax.random.split(k_small, n), x)
+        small = jax.vmap(lambda k, p: kernel.propose(k, p, None)[0])(lane_keys(k_small, n), x)
         fresh = jax.random.uniform(k_large, (n * d,), jnp.float32).reshape(n, d)
         large = jax.random.uniform(k_kind, (n,), jnp.float32) < self.p_large
         y = evaluate_points(target, jnp.where(large[:, None], fresh, small))
-        moved, info = jax.vmap(lambda k, p, q: kernel.accept(k, p, q, None))(jax.random.split(k_accept, n), x, y)
+        moved, info = jax.vmap(lambda k, p, q: kernel.accept(k, p, q, None))(lane_keys(k_accept, n), x, y)
         a, accept = info.acceptance_probability, info.accepted
         both = lambda p, q: jnp.concatenate([p, q])  # noqa: E731
         film = splat(

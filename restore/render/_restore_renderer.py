@@ -97,6 +97,7 @@ from ._renderer import (
     bootstrap_size,
     check_count,
     check_lanes,
+    lane_keys,
     ratio,
     resample,
     xp_of,
@@ -198,18 +199,6 @@ def _add_events(tally, target, info, counted, log_kill_rate, moves, starting, ev
         completed_moves_sq=tally.completed_moves_sq + jnp.sum(jnp.where(killed, moves.astype(jnp.float32) ** 2, 0.0)),
         lane_steps=tally.lane_steps + events,
     )
-
-
-def lane_keys(key: PRNGKeyArray, n: int) -> PRNGKeyArray:
-    """The `n` lanes' keys of a step, `split(key, n)`, computed once (an optimisation barrier).
-
-    Without the barrier XLA fuses the split into the kernel that splits each lane's key into
-    its step's five keys, and hashes the lane's key again for every word of those: a
-    Metropolis Restore step of 2048 lanes took 1.23 times as long (door_gap, 256x256). The
-    bits are the same. (`restore.sample`'s loop, which derives its lane keys by `fold_in`,
-    showed no such gain, so the core step has no barrier.)
-    """
-    return jax.lax.optimization_barrier(jax.random.split(key, n))
 
 
 def _end_tours(state, duration: Float[Array, " N"], ended: Bool[Array, " N"]) -> dict[str, Any]:
