@@ -110,6 +110,18 @@ def _names(text: str | None) -> tuple[str, ...] | None:
     return None if text is None else tuple(part.strip() for part in text.split(",") if part.strip())
 
 
+def _lanes(text: str) -> dict[str, int]:
+    """`--lanes`: `2048`, `restore=16384` or `2048,restore=16384` (a bare count sets every method)."""
+    given: dict[str, int] = {}
+    for part in _names(text) or ():
+        name, _, count = part.rpartition("=")
+        try:
+            given[name.strip() or "*"] = int(count)
+        except ValueError:
+            _fail(f"--lanes must look like 2048 or 2048,restore=16384, got {text!r}")
+    return given
+
+
 @app.command()
 def bench(
     quick: bool = typer.Option(False, "--quick", help="Small subset (2-d and 10-d mixtures; jump Restore RW, MH RW, emcee stretch): a few minutes."),
@@ -343,7 +355,9 @@ def render_compare(
     realisations: int = typer.Option(3, min=1, help="Independent renders per method and scene."),
     resolution: str = typer.Option("64", help="Film size, e.g. 64 or 96x64."),
     max_depth: int = typer.Option(5, min=1, help="Maximum path depth."),
-    lanes: int = typer.Option(LANES, min=1, help="Parallel lanes of the PSS renderers."),
+    lanes: str = typer.Option(
+        str(LANES), help="Parallel lanes of the PSS renderers: one count, or per method, e.g. 2048,restore=16384."
+    ),
     tour_length: float = typer.Option(TOUR_LENGTH, min=1e-6, help="Restore's mean tour length (local moves per tour)."),
     p_large: float = typer.Option(P_LARGE, min=1e-6, max=1.0, help="PSSMLT's large-step probability."),
     reference_spp: int = typer.Option(4096, min=1, help="Samples per pixel of the cached reference."),
@@ -359,7 +373,7 @@ def render_compare(
     try:
         result = compare_renderers(
             _names(scenes), _names(methods), seconds=time_budget, realisations=realisations,
-            resolution=_resolution(resolution), max_depth=max_depth, lanes=lanes, tour_length=tour_length,
+            resolution=_resolution(resolution), max_depth=max_depth, lanes=_lanes(lanes), tour_length=tour_length,
             p_large=p_large, reference_spp=reference_spp, technique=technique, out_dir=out, progress=progress,
             log=console.print,
         )

@@ -16,7 +16,7 @@ import dataclasses
 import io
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 import jax
@@ -123,6 +123,23 @@ def _native_run(scene, reference, seconds: float, max_depth: int, seed: int):
     return native.image, native.spp, native.seconds, curve
 
 
+def lanes_by_method(lanes: int | Mapping[str, int], methods: Sequence[str]) -> dict[str, int]:
+    """Parallel lanes of each PSS method among `methods`: `lanes` for all, or a mapping from
+    method names to lanes (methods it leaves out get `LANES`; `"*"` sets the others).
+
+    Raises:
+        ValueError: a count that is not a positive integer, or a name that is not a PSS method.
+    """
+    given = dict(lanes) if isinstance(lanes, Mapping) else {"*": lanes}
+    for name, n in given.items():
+        if name != "*" and (name not in METHODS or name == "path"):
+            raise ValueError(f"lanes given for {name!r}, which is not a PSS method ({', '.join(METHODS[1:])})")
+        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+            raise ValueError(f"lanes must be positive integers, got {n!r} for {name!r}")
+    default = int(given.get("*", LANES))
+    return {m: int(given.get(m, default)) for m in methods if m != "path"}
+
+
 def compare_renderers(
     scenes: Sequence[str] = ("cornell_box", "door_ajar", "caustic", "glass_torus"),
     methods: Sequence[str] = METHODS,
@@ -131,7 +148,7 @@ def compare_renderers(
     realisations: int = 3,
     resolution: tuple[int, int] = (64, 64),
     max_depth: int = 5,
-    lanes: int = LANES,
+    lanes: int | Mapping[str, int] = LANES,
     tour_length: float = TOUR_LENGTH,
     p_large: float = P_LARGE,
     reference_spp: int = 4096,
@@ -148,7 +165,9 @@ def compare_renderers(
         seconds: wall time per render, compilation excluded.
         realisations: independent renders per method (for the variance across realisations).
         resolution, max_depth: the film and path length, for every method and the reference.
-        lanes: parallel lanes of the PSS renderers.
+        lanes: parallel lanes of the PSS renderers, or a mapping from method names to
+            lanes (`lanes_by_method`): Restore's independent tours gain from more lanes
+            than PSSMLT's chains, which need length (`docs/rendering.md`).
         tour_length: Restore's mean tour length (local moves per tour, complete tours).
         p_large: PSSMLT's large-step probability.
         reference_spp: samples per pixel of the cached reference.
@@ -177,6 +196,7 @@ def compare_renderers(
         raise ValueError(f"unknown technique {technique!r}; choose from {', '.join(TECHNIQUES)}")
     if not seconds > 0 or realisations < 1:
         raise ValueError(f"need seconds > 0 and realisations >= 1, got {seconds} and {realisations}")
+    lanes_of = lanes_by_method(lanes, methods)
     say = log or (lambda text: None)
     references, runs, throughput, skipped = {}, [], {}, {}
     for scene_name in scenes:
@@ -208,7 +228,7 @@ def compare_renderers(
                     stamps: list[tuple[float, float]] = []
                     result = render(
                         pss_target, make_renderer(method, tour_length=tour_length, p_large=p_large), key=jax.random.key(1000 * r + 7),
-                        seconds=seconds, lanes=lanes, progress=progress,
+                        seconds=seconds, lanes=lanes_of[method], progress=progress,
                         on_update=lambda img, _s: stamps.append((time.perf_counter(), relative_mse(img, reference))),  # noqa: B023
                     )
                     shift = stamps[-1][0] - result.seconds if stamps else 0.0
@@ -224,12 +244,19 @@ def compare_renderers(
                 say(f"{scene_key} {method} #{r}: {elapsed:.1f} s, {evaluations:,} paths, relative MSE {run.metrics['relative_mse']:.4g}")
     comparison = RenderComparison(
         tuple(Path(s).stem for s in scenes), tuple(methods), float(seconds), realisations, tuple(resolution), max_depth,
-        references, runs, throughput, skipped, {"lanes": lanes, "tour_length": tour_length, "p_large": p_large},
+        references, runs, throughput, skipped, _settings(lanes_of, tour_length, p_large),
         technique=technique,
     )
     if out_dir is not None:
         write_comparison(comparison, Path(out_dir))
     return comparison
+
+
+def _settings(lanes_of: dict[str, int], tour_length: float, p_large: float) -> dict[str, float]:
+    """The settings line: `lanes` when every PSS method runs the same count, else `<method> lanes` each."""
+    counts = set(lanes_of.values())
+    by_method = {"lanes": counts.pop()} if len(counts) == 1 else {f"{m} lanes": n for m, n in lanes_of.items()}
+    return {**by_method, "tour_length": tour_length, "p_large": p_large}
 
 
 def _fmt(x: float) -> str:

@@ -132,19 +132,30 @@ def test_render_compare_writes_the_table_figures_and_ratios(tmp_path, monkeypatc
 
 def test_render_compare_on_multiplexed_bdpt(tmp_path, monkeypatch):
     """`--technique bdpt`: Restore and MMLT on MultiplexedBDPT beside Mitsuba's path tracer;
-    MALA Restore is skipped with the reason (no gradients)."""
+    MALA Restore is skipped with the reason (no gradients). Restore runs its own lane count."""
     monkeypatch.setenv("RESTORE_CACHE_DIR", str(tmp_path / "cache"))
     out = tmp_path / "results"
     result = _invoke("render-compare", "--scenes", "cornell_box", "--methods", "path,pssmlt,restore,mala-restore",
                      "--technique", "bdpt", "--time", 0.3, "--realisations", 1, "--resolution", 8, "--max-depth", 2,
-                     "--lanes", 256, "--reference-spp", 64, "--no-progress", "--out", out)
+                     "--lanes", "256,restore=512", "--reference-spp", 64, "--no-progress", "--out", out)
     assert result.exit_code == 0, result.output
     text = (out / "results.md").read_text()
     assert "Metropolis Restore / MMLT" in text and "multiplexed BDPT" in text
+    assert "pssmlt lanes 256, restore lanes 512" in text
     assert "skipped: needs gradients" in text
     assert len((out / "results.csv").read_text().splitlines()) == 1 + 3
     refused = _invoke("render-compare", "--technique", "vcm", "--out", out)
     assert refused.exit_code == 2 and "unknown technique 'vcm'" in refused.output, refused.output
+
+
+@pytest.mark.parametrize(
+    ("lanes", "message"),
+    [("256,restore=0", "positive integers"), ("path=256", "not a PSS method"), ("restore:256", "--lanes must look like")],
+)
+def test_render_compare_refuses_bad_lane_counts_before_rendering(tmp_path, lanes, message):
+    result = _invoke("render-compare", "--scenes", "cornell_box", "--lanes", lanes, "--out", tmp_path)
+    assert result.exit_code == 2 and message in result.output, result.output
+    assert not any(tmp_path.iterdir())
 
 
 def test_render_checkpoint_resumes_to_the_same_image(tmp_path):
