@@ -131,11 +131,12 @@ def render(
 
     Finishing: a renderer with open work at the end of the budget (`renderer.finishes`:
     Restore with complete tours) then starts nothing new and steps until that work is
-    done. A finishing step evaluates `finishing_slots(lanes)` points (a quarter of the
-    lanes, at least 64), shared among the open lanes, so a few long tours do not cost a
-    full batch per step; Restore with a Metropolis small step runs its open tours by
+    done. A finishing step evaluates a batch of points shared among the open lanes, so a
+    few long tours do not cost a full batch per step: the smallest of `finishing_rungs(lanes)`
+    (a quarter of the lanes, at least 64, then quarters of that down to 256) that holds one
+    point per open tour. Restore with a Metropolis small step runs its open tours by
     speculative steps there (`restore.speculative_steps`: several events of a tour per
-    evaluation batch). The finishing program is compiled ahead too. Finishing comes
+    evaluation batch). The finishing programs are compiled ahead too. Finishing comes
     on top of the budget: its steps and time are in `finishing_steps`, `finishing_seconds`,
     `evaluations` and `seconds`.
 
@@ -379,43 +380,73 @@ def _compile_chunk(renderer, target, key_run, state_shape, warm_key, warm_state)
     return chunk_fn
 
 
-#: Finishing evaluates `max(_FINISHING_SLOTS, lanes // _FINISHING_SHARE)` points per step (at most `lanes`).
+#: Finishing evaluates at most `max(_FINISHING_SLOTS, lanes // _FINISHING_SHARE)` points per
+#: step (at most `lanes`), and fewer, down to `_FINISHING_SMALLEST`, as tours close.
 _FINISHING_SLOTS = 64
 _FINISHING_SHARE = 4
+_FINISHING_SMALLEST = 256
 
 
 def finishing_slots(lanes: int) -> int:
-    """Points evaluated per finishing step for a render of `lanes` lanes."""
+    """The most points evaluated per finishing step for a render of `lanes` lanes."""
     return min(lanes, max(_FINISHING_SLOTS, lanes // _FINISHING_SHARE))
 
 
+def finishing_rungs(lanes: int) -> tuple[int, ...]:
+    """The batch sizes of the finishing steps, largest first: `finishing_slots(lanes)`, then
+    quarters of it while they hold `_FINISHING_SMALLEST` points.
+
+    Why several: a step costs a fixed overhead plus a share per point, and most of the
+    finishing time goes to the last few long tours. With thousands of tours open, the large
+    batch gives each one a step; with a few hundred, a smaller batch still gives each one a
+    step (or a tree of speculative steps) at a fraction of the cost. On the pool scene at
+    16384 lanes the finishing took 15-19 s with 4096, 1024 and 256 points against 23 s with
+    4096 alone (`docs/rendering.md`).
+    """
+    rungs = [finishing_slots(lanes)]
+    while rungs[-1] // _FINISHING_SHARE >= _FINISHING_SMALLEST:
+        rungs.append(rungs[-1] // _FINISHING_SHARE)
+    return tuple(rungs)
+
+
 def _finisher(renderer, target, lanes, state_shape, warm_key, warm_state):
-    """`(slots, finish)`: the renderer's `finish` compiled for the run's state with
-    `finishing_slots(lanes)` evaluations per step, and called once here, outside the budget
-    (Dr.Jit records its kernels for that batch size)."""
-    slots = finishing_slots(lanes)
+    """`((slots, finish), ...)`: the renderer's `finish` compiled for the run's state with
+    each of `finishing_rungs(lanes)` evaluations per step, and called once here, outside
+    the budget (Dr.Jit records its kernels for each batch size)."""
     key_spec = jax.eval_shape(lambda: warm_key)
     n_spec = jax.ShapeDtypeStruct((), jnp.int32)
-    finish = jax.jit(lambda k, s, n: renderer.finish(target, k, s, n, slots)).lower(key_spec, state_shape, n_spec).compile(compiler_options())
-    jax.block_until_ready(finish(warm_key, warm_state, jnp.asarray(1, jnp.int32)))
-    return slots, finish
+    programs = []
+    for slots in finishing_rungs(lanes):
+        run = lambda k, s, n, slots=slots: renderer.finish(target, k, s, n, slots)  # noqa: E731
+        finish = jax.jit(run).lower(key_spec, state_shape, n_spec).compile(compiler_options())
+        jax.block_until_ready(finish(warm_key, warm_state, jnp.asarray(1, jnp.int32)))
+        programs.append((slots, finish))
+    return tuple(programs)
+
+
+def _rung(finishers, still_open: int):
+    """The finisher with the smallest batch that holds a point for each of `still_open` tours
+    (the largest when none does)."""
+    fitting = [f for f in finishers if f[0] >= still_open]
+    return fitting[-1] if fitting else finishers[0]
 
 
 def _finish(renderer, finisher, state, totals, key_run, chunks, chunk, progress, lanes, step_cost):
-    """Complete the open work: no new work starts; each step evaluates the finisher's `slots`
-    points, shared among the open lanes (Restore: speculative steps along each open tour),
-    `chunk` steps a call, until nothing is open. The tallies are drained after every call.
+    """Complete the open work: no new work starts; each step evaluates the points of one
+    finisher's batch (`_rung`: the smallest that holds the open tours), shared among the
+    open lanes (Restore: speculative steps along each open tour), `chunk` steps a call,
+    until nothing is open. The tallies are drained after every call.
     Returns `((totals, chunks, steps, evaluations, seconds), interrupted)`; Ctrl-C keeps every
     call that finished."""
     start, taken, evaluations = time.perf_counter(), 0, 0
     state = renderer.stop_starting(state)
     open_work = renderer.open_tours(state)
-    slots, finish = finisher
     meter = Meter(progress and open_work > 0, "finishing open tours (none start)", open_work, "tours")
     try:
         with meter.shown():
             while (still_open := renderer.open_tours(state)) > 0:
                 meter.update(open_work - still_open, f"{still_open:,} open, {taken:,} steps")
+                slots, finish = _rung(finisher, still_open)
                 advanced, n = finish(jax.random.fold_in(key_run, chunks), state, jnp.asarray(chunk, jnp.int32))
                 drained = host_tally(advanced.tally, totals)
                 state, totals, chunks = zero_tally(advanced), drained, chunks + 1

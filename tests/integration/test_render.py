@@ -350,21 +350,45 @@ def test_driver_stops_on_the_evaluation_budget_and_reports_progress():
     assert odd.evaluations == 960 and odd.steps == 15
 
 
-def test_driver_finishes_every_open_tour_in_smaller_batches():
+@pytest.mark.parametrize("lanes", [512, 4096])
+def test_driver_finishes_every_open_tour_in_smaller_batches(lanes, monkeypatch):
     """Complete tours: after the budget no tour starts, the open ones run on (each finishing
-    step evaluating a quarter of the lanes' worth of points) and every tour started is
-    counted once, finished."""
+    step evaluating a quarter of the lanes' worth of points, or less once few tours are
+    open) and every tour started is counted once, finished."""
+    import restore.render._driver as driver
+
+    used = []
+
+    def rung(finishers, still_open):
+        chosen = driver_rung(finishers, still_open)
+        used.append((still_open, chosen[0]))
+        return chosen
+
+    driver_rung = driver._rung
+    monkeypatch.setattr(driver, "_rung", rung)
     renderer = rr.MetropolisRestore(tour_length=8, n_bootstrap=1000)
-    lanes, updates = 512, []
+    updates: list[float] = []
     budget = renderer.init_cost(lanes) + 40 * lanes
     result = rr.render(TARGET, renderer, key=jax.random.key(3), evaluations=budget, lanes=lanes, chunk=10,
                        progress=False, on_update=lambda image, st: updates.append(st["tours_completed"]))
     st = result.statistics
     assert result.steps == 40 and result.finishing_steps > 0 and st["finishing_steps"] == result.finishing_steps
     assert st["tours_started"] == st["tours_completed"] == updates[-1] and len(updates) == 5
+    # each call ran on the smallest batch holding its open tours (4096 lanes: 1024, then 256)
+    rungs = driver.finishing_rungs(lanes)
+    assert rungs == ((128,) if lanes == 512 else (1024, 256))
+    assert all(slots == min([r for r in rungs if r >= n] or [rungs[0]]) for n, slots in used)
+    assert {slots for _, slots in used} == set(rungs)
     # finishing steps of the smaller batches cost less than a full step each
-    assert budget < result.evaluations < budget + result.finishing_steps * lanes
+    assert budget < result.evaluations <= budget + result.finishing_steps * lanes // 4
     assert np.all(np.isfinite(result.image)) and result.image.sum() > 0
+
+
+def test_finishing_batches_shrink_by_quarters():
+    from restore.render._driver import finishing_rungs, finishing_slots
+
+    assert finishing_rungs(16384) == (4096, 1024, 256) and finishing_slots(16384) == 4096
+    assert finishing_rungs(2048) == (512,) and finishing_rungs(100) == (64,) and finishing_rungs(32) == (32,)
 
 
 @pytest.mark.parametrize("renderer", [rr.MetropolisRestore(n_bootstrap=1000), rr.MALARestore(2e-4, n_bootstrap=1000)])
