@@ -8,7 +8,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from .render._methods import LANES, P_LARGE, TOUR_LENGTH
+from .render._methods import LANES, METHOD_LANES, P_LARGE, TOUR_LENGTH, default_lanes
 
 app = typer.Typer(help="Restore samplers in JAX: jump Restore, baselines and checks.", no_args_is_help=True, add_completion=False)
 console = Console()
@@ -108,6 +108,9 @@ def _k_hat(estimate, i: int) -> str:
 
 def _names(text: str | None) -> tuple[str, ...] | None:
     return None if text is None else tuple(part.strip() for part in text.split(",") if part.strip())
+
+
+_LANES_HELP = ", ".join(f"{n} for {m}" for m, n in METHOD_LANES.items()) + f", {LANES} for the others"
 
 
 def _lanes(text: str) -> dict[str, int]:
@@ -240,7 +243,7 @@ def render(
     max_depth: int | None = typer.Option(
         None, min=1, help=f"Maximum path depth, as in Mitsuba's path integrator (default: an XML scene's own; {_BUILTIN_MAX_DEPTH} for built-in scenes)."
     ),
-    lanes: int = typer.Option(LANES, min=1, help="Parallel lanes of the PSS renderers."),
+    lanes: int | None = typer.Option(None, min=1, help=f"Parallel lanes of the PSS renderers (default: {_LANES_HELP})."),
     tour_length: float = typer.Option(TOUR_LENGTH, min=1e-6, help="Restore's mean tour length (local moves per tour)."),
     p_large: float = typer.Option(P_LARGE, min=1e-6, max=1.0, help="PSSMLT's large-step probability."),
     seed: int = typer.Option(0, help="Random seed."),
@@ -276,6 +279,7 @@ def render(
         _fail(str(error))
     try:
         settings = {"tour_length": tour_length, "p_large": p_large}
+        lanes = default_lanes(method) if lanes is None else lanes
         image, summary = _render(scene, method, time_budget, evaluations, size, max_depth, lanes, settings, seed, progress, method in GRADIENT_METHODS, checkpoint)
     except (FileNotFoundError, UnsupportedSceneError, LLVMNotFoundError, ImportError) as error:
         _fail(str(error))
@@ -355,8 +359,8 @@ def render_compare(
     realisations: int = typer.Option(3, min=1, help="Independent renders per method and scene."),
     resolution: str = typer.Option("64", help="Film size, e.g. 64 or 96x64."),
     max_depth: int = typer.Option(5, min=1, help="Maximum path depth."),
-    lanes: str = typer.Option(
-        str(LANES), help="Parallel lanes of the PSS renderers: one count, or per method, e.g. 2048,restore=16384."
+    lanes: str | None = typer.Option(
+        None, help=f"Parallel lanes of the PSS renderers: one count, or per method, e.g. 2048,restore=16384 (default: {_LANES_HELP})."
     ),
     tour_length: float = typer.Option(TOUR_LENGTH, min=1e-6, help="Restore's mean tour length (local moves per tour)."),
     p_large: float = typer.Option(P_LARGE, min=1e-6, max=1.0, help="PSSMLT's large-step probability."),
@@ -373,7 +377,7 @@ def render_compare(
     try:
         result = compare_renderers(
             _names(scenes), _names(methods), seconds=time_budget, realisations=realisations,
-            resolution=_resolution(resolution), max_depth=max_depth, lanes=_lanes(lanes), tour_length=tour_length,
+            resolution=_resolution(resolution), max_depth=max_depth, lanes=None if lanes is None else _lanes(lanes), tour_length=tour_length,
             p_large=p_large, reference_spp=reference_spp, technique=technique, out_dir=out, progress=progress,
             log=console.print,
         )

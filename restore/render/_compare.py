@@ -24,7 +24,7 @@ import numpy as np
 
 from .._io import matplotlib_for, save_and_close, write_text
 from ._driver import render
-from ._methods import GRADIENT_METHODS, LANES, METHODS, P_LARGE, TOUR_LENGTH, make_renderer
+from ._methods import GRADIENT_METHODS, METHODS, P_LARGE, TOUR_LENGTH, default_lanes, make_renderer
 from ._metrics import l1, mape, mrse, mse, relative_mse, variance_across
 
 #: The primary-sample-space targets the PSS methods can run on.
@@ -123,21 +123,21 @@ def _native_run(scene, reference, seconds: float, max_depth: int, seed: int):
     return native.image, native.spp, native.seconds, curve
 
 
-def lanes_by_method(lanes: int | Mapping[str, int], methods: Sequence[str]) -> dict[str, int]:
-    """Parallel lanes of each PSS method among `methods`: `lanes` for all, or a mapping from
-    method names to lanes (methods it leaves out get `LANES`; `"*"` sets the others).
+def lanes_by_method(lanes: int | Mapping[str, int] | None, methods: Sequence[str]) -> dict[str, int]:
+    """Parallel lanes of each PSS method among `methods`: each method's default
+    (`default_lanes`) for `None`, `lanes` for all, or a mapping from method names to lanes
+    (`"*"` sets the methods it leaves out, which otherwise keep their defaults).
 
     Raises:
         ValueError: a count that is not a positive integer, or a name that is not a PSS method.
     """
-    given = dict(lanes) if isinstance(lanes, Mapping) else {"*": lanes}
+    given = {} if lanes is None else dict(lanes) if isinstance(lanes, Mapping) else {"*": lanes}
     for name, n in given.items():
         if name != "*" and (name not in METHODS or name == "path"):
             raise ValueError(f"lanes given for {name!r}, which is not a PSS method ({', '.join(METHODS[1:])})")
         if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
             raise ValueError(f"lanes must be positive integers, got {n!r} for {name!r}")
-    default = int(given.get("*", LANES))
-    return {m: int(given.get(m, default)) for m in methods if m != "path"}
+    return {m: int(given.get(m, given.get("*", default_lanes(m)))) for m in methods if m != "path"}
 
 
 def compare_renderers(
@@ -148,7 +148,7 @@ def compare_renderers(
     realisations: int = 3,
     resolution: tuple[int, int] = (64, 64),
     max_depth: int = 5,
-    lanes: int | Mapping[str, int] = LANES,
+    lanes: int | Mapping[str, int] | None = None,
     tour_length: float = TOUR_LENGTH,
     p_large: float = P_LARGE,
     reference_spp: int = 4096,
@@ -166,8 +166,9 @@ def compare_renderers(
         realisations: independent renders per method (for the variance across realisations).
         resolution, max_depth: the film and path length, for every method and the reference.
         lanes: parallel lanes of the PSS renderers, or a mapping from method names to
-            lanes (`lanes_by_method`): Restore's independent tours gain from more lanes
-            than PSSMLT's chains, which need length (`docs/rendering.md`).
+            lanes (`lanes_by_method`); by default each method's own (`default_lanes`:
+            Restore's independent tours gain from more lanes than PSSMLT's chains, which
+            need length, `docs/rendering.md`).
         tour_length: Restore's mean tour length (local moves per tour, complete tours).
         p_large: PSSMLT's large-step probability.
         reference_spp: samples per pixel of the cached reference.

@@ -19,9 +19,18 @@ GRADIENT_METHODS = ("mala-restore",)
 #: paper's authors and Kelemen et al. set them, chosen independently (`docs/rendering.md`
 #: has the sweep); ERPT's chain length is its own default.
 TOUR_LENGTH, P_LARGE, CHAIN_LENGTH = 1.0, 0.3, 32
-#: Default parallel lanes: on a CPU, fewer lanes run longer chains and tours for the same
-#: number of paths (`docs/rendering.md`).
+#: Default parallel lanes: on a CPU, fewer lanes run longer chains for the same number of
+#: paths, which PSSMLT needs (`docs/rendering.md`).
 LANES = 2048
+#: Methods whose own default differs: Restore's tours are independent, so it gains from the
+#: throughput of more lanes, up to where finishing the longest open tours after the budget
+#: costs more than it gains (16384 lanes on the pool, `docs/rendering.md`).
+METHOD_LANES = {"restore": 8192}
+
+
+def default_lanes(method: str) -> int:
+    """The parallel lanes `method` runs by default (`METHOD_LANES`, else `LANES`)."""
+    return METHOD_LANES.get(method, LANES)
 
 
 def make_renderer(

@@ -158,6 +158,19 @@ def test_render_compare_refuses_bad_lane_counts_before_rendering(tmp_path, lanes
     assert not any(tmp_path.iterdir())
 
 
+def test_each_method_keeps_its_own_default_lanes_unless_told():
+    from restore.render._compare import lanes_by_method
+    from restore.render._methods import LANES, METHOD_LANES
+
+    methods = ("path", "pssmlt", "restore")
+    restore_lanes = METHOD_LANES["restore"]
+    assert restore_lanes != LANES
+    assert lanes_by_method(None, methods) == {"pssmlt": LANES, "restore": restore_lanes}
+    assert lanes_by_method({"pssmlt": 512}, methods) == {"pssmlt": 512, "restore": restore_lanes}
+    assert lanes_by_method({"*": 1024}, methods) == lanes_by_method(1024, methods) == {"pssmlt": 1024, "restore": 1024}
+    assert lanes_by_method({"*": 1024, "restore": 64}, methods) == {"pssmlt": 1024, "restore": 64}
+
+
 def test_render_checkpoint_resumes_to_the_same_image(tmp_path):
     from restore._checkpoint import read_header
     from restore.render._images import load_image
