@@ -400,7 +400,7 @@ def finishing_rungs(lanes: int) -> tuple[int, ...]:
     finishing time goes to the last few long tours. With thousands of tours open, the large
     batch gives each one a step; with a few hundred, a smaller batch still gives each one a
     step (or a tree of speculative steps) at a fraction of the cost. On the pool scene at
-    16384 lanes the finishing took 15-19 s with 4096, 1024 and 256 points against 23 s with
+    16384 lanes the finishing took 14-17 s with 4096, 1024 and 256 points against 23 s with
     4096 alone (`docs/rendering.md`).
     """
     rungs = [finishing_slots(lanes)]
