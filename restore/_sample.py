@@ -19,6 +19,7 @@ from jaxtyping import Array, PRNGKeyArray
 
 from ._accumulators import (
     LaneSums,
+    add_recorded_tours,
     counted_ends,
     drain_histogram,
     drain_sums,
@@ -181,7 +182,8 @@ def _advance(
     carry = _restarted(carry)  # the host drained the previous chunk's totals (a no-op on a fresh carry)
     if sharding is not None:
         carry = jax.lax.with_sharding_constraint(carry, _carry_shardings(carry, sharding))
-    return jax.lax.while_loop(cond, body, (carry, jnp.zeros((), jnp.int32)))
+    carry, done = jax.lax.while_loop(cond, body, (carry, jnp.zeros((), jnp.int32)))
+    return carry._replace(sums=add_recorded_tours(carry.sums, carry.tours)), done
 
 
 def _observed_step(sampler_and_observe, key, state):

@@ -1,12 +1,14 @@
 """Per-tour records kept on the device during one chunk of a run, then handed to the host.
 
-The streaming sums of `_accumulators` hold everything the estimates need, but not the
-tail of the tours: whether a few tours dominate, and so whether the standard errors can
-be trusted, is read off the largest tours (`_tails`). Every complete tour's duration `T`
-and observable integrals `F`, and every tour start's importance weight, are written to a
-small per-lane buffer; the host takes the buffers after each chunk and keeps the largest
-values (`_tails.add_records`: the records wait, packed per lane, and join the top sets in
-batches). A chunk stops early when some lane's buffer is full, so no tour is ever lost.
+Every complete tour's duration `T` and observable integrals `F`, and every tour start's
+importance weight, are written to a small per-lane buffer. At the end of a chunk the
+program adds them to the streaming sums over complete tours and starts
+(`_accumulators.add_recorded_tours`: once per chunk instead of a masked update of every
+lane at every step). The host then takes the buffers and keeps the largest values, since
+the sums do not hold the tail of the tours: whether a few tours dominate, and so whether
+the standard errors can be trusted, is read off the largest tours (`_tails.add_records`:
+the records wait, packed per lane, and join the top sets in batches). A chunk stops early
+when some lane's buffer is full, so no tour is ever lost.
 """
 
 from __future__ import annotations
