@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import functools
 import os
+import threading
 from collections.abc import Callable
 from typing import Any
 
@@ -41,17 +42,25 @@ def jit(fun: Callable | None = None, *, filtered: bool = False, **kwargs) -> Cal
 
     The jitted function is built at the first call, when the backend is known (importing
     restore does not start JAX's backends). Use as `@jit`, `@jit(filtered=True)` or
-    `@jit(static_argnums=1)`.
+    `@jit(static_argnums=1)`. `.lower(*args)` lowers it for `args` (to compile it ahead).
     """
     if fun is None:
         return functools.partial(jit, filtered=filtered, **kwargs)
     built: list[Callable] = []
 
+    def build():
+        with _BUILD_LOCK:  # a program may be compiled ahead from another thread (`_ahead`)
+            if not built:
+                wrap = eqx.filter_jit if filtered else jax.jit
+                built.append(wrap(fun, **kwargs, compiler_options=compiler_options()))
+        return built[0]
+
     @functools.wraps(fun)
     def call(*args, **kw):
-        if not built:
-            wrap = eqx.filter_jit if filtered else jax.jit
-            built.append(wrap(fun, **kwargs, compiler_options=compiler_options()))
-        return built[0](*args, **kw)
+        return (built[0] if built else build())(*args, **kw)
 
+    call.lower = lambda *args, **kw: build().lower(*args, **kw)  # type: ignore[attr-defined]
     return call
+
+
+_BUILD_LOCK = threading.Lock()

@@ -30,6 +30,7 @@ from ._accumulators import (
     update_histogram,
     update_lane_sums,
 )
+from ._ahead import compile_ahead, wait
 from ._checkpoint import (
     CheckpointError,
     array_digest,
@@ -267,6 +268,28 @@ def _start_carry(states, shape: _CarryShape) -> _Carry:
 _start_carry_jit = jit(_start_carry, static_argnums=1)
 
 
+def _carry_shape(num_lanes: int, observe: Observables, has_tours: bool, capacity: int, given: bool, sharding) -> _CarryShape:
+    depth = records_per_lane(num_lanes, observe.size) if has_tours else 0
+    return _CarryShape(num_lanes, observe.size, depth, capacity, given, 0 if sharding is None else sharding.num_devices)
+
+
+def _compile_run_ahead(like, init_keys, positions, lane_keys, observables, capacity: int, rao_blackwell: bool):
+    """Compile the start states' and the run loop's programs in the background while the
+    pilot runs (`_ahead`), for a sampler built like the calibrated one (`like`)."""
+
+    def loop_arguments() -> tuple:
+        states = eqx.filter_eval_shape(_init.__wrapped__, like, init_keys, positions)
+        observe = Observables(observables, like.dim, states.logdensity.dtype)
+        shape = _carry_shape(init_keys.shape[0], observe, like.has_tours, capacity, positions is not None, None)
+        layout = jax.eval_shape(functools.partial(_start_carry, shape=shape), states)
+        carry = jax.tree.map(lambda a: np.zeros(a.shape, a.dtype), layout)  # NumPy: no program to compile
+        scalars = (np.zeros((), np.int32), np.zeros((), bool), np.zeros((), np.int32))  # length, finishing, thin
+        return (like, observe, carry, lane_keys, *scalars, rao_blackwell, None)
+
+    inputs = (like, init_keys, positions, lane_keys, observables, capacity, rao_blackwell)
+    return compile_ahead(_init, lambda: (like, init_keys, positions, None), inputs), compile_ahead(_advance, loop_arguments, inputs)
+
+
 @jit
 def _split_three(key: PRNGKeyArray) -> tuple[PRNGKeyArray, PRNGKeyArray, PRNGKeyArray]:
     """`jax.random.split(key, 3)`, unpacked in one compiled program (not one to split and one to unpack)."""
@@ -372,7 +395,10 @@ def sample(
     regenerative process from its first step: no burn-in), or at `positions`, in which
     case each lane's first, partial tour is left out of the tour-based estimates.
     Observables are integrated against the holding times as the run goes (constant
-    memory); thinned draws with their weights are kept for post-hoc work.
+    memory); thinned draws with their weights are kept for post-hoc work. On one
+    device, the first call of a process compiles the start states' and the run loop's
+    programs in background threads while the pilot runs (`RESTORE_COMPILE_AHEAD=0` in
+    the environment compiles them in turn instead; the results are the same).
 
     Arguments:
         sampler: a sampler (`restore.AbstractSampler`): `JumpRestore`, `Restore` or
@@ -473,7 +499,6 @@ def sample(
         )
 
     key_pilot, key_init, key_run = _split_three(key)
-    sampler, pilot = sampler.calibrate(key_pilot)
     dim = sampler.dim
     if positions is not None:
         try:
@@ -484,15 +509,6 @@ def sample(
             raise ValueError(f"positions must have shape (num_lanes, d) = ({num_lanes}, {dim}), got {positions.shape}")
         if not bool(jnp.all(jnp.isfinite(positions))):
             raise ValueError("positions must be finite")
-    init_keys = _lane_keys(key_init, num_lanes, first_lane)
-    if sharding is not None:
-        sampler = _replicate(sampler, sharding)
-        init_keys = put(init_keys, sharding.lanes)
-        positions = None if positions is None else put(positions, sharding.lanes)
-    states = _init(sampler, init_keys, positions, sharding)
-    dtype = states.logdensity.dtype
-    observe = Observables(observables, dim, dtype)
-
     thin_given = thin
     thin, stored = _thinning(num_steps, num_lanes, max_draws, thin)
     capacity = _draw_capacity(stored, num_lanes, max_draws)
@@ -500,6 +516,24 @@ def sample(
         capacity = check_integer(draw_rows, "draw_rows", minimum=0)
         if capacity < stored:
             raise ValueError(f"draw_rows={capacity} is fewer than the {stored} draws this run stores per lane")
+    init_keys = _lane_keys(key_init, num_lanes, first_lane)
+    lane_keys = _lane_keys(key_run, num_lanes, first_lane)
+    rao_blackwell = weights == "rao_blackwell"
+    ahead = (None, None)
+    if sharding is None and os.environ.get("RESTORE_COMPILE_AHEAD", "1") != "0":
+        like = sampler.calibration_stand_in()
+        ahead = _compile_run_ahead(like, init_keys, positions, lane_keys, observables, capacity, rao_blackwell)
+
+    sampler, pilot = sampler.calibrate(key_pilot)
+    if sharding is not None:
+        sampler = _replicate(sampler, sharding)
+        init_keys = put(init_keys, sharding.lanes)
+        positions = None if positions is None else put(positions, sharding.lanes)
+    wait(ahead[0])
+    states = _init(sampler, init_keys, positions, sharding)
+    dtype = states.logdensity.dtype
+    observe = Observables(observables, dim, dtype)
+
     draws_note = None
     if thin_given is None and thin > 1 and stored > 0:
         draws_note = (
@@ -514,10 +548,7 @@ def sample(
 
     chunk = math.ceil(num_steps / min(num_chunks, num_steps))
     has_tours = sampler.has_tours
-    depth = records_per_lane(num_lanes, observe.size) if has_tours else 0
-
-    shape = _CarryShape(num_lanes, observe.size, depth, capacity, positions is not None, 0 if sharding is None else sharding.num_devices)
-    lane_keys = _lane_keys(key_run, num_lanes, first_lane)
+    shape = _carry_shape(num_lanes, observe, has_tours, capacity, positions is not None, sharding)
     layout = None
     if sharding is None:
         carry = _start_carry_jit(states, shape)  # one compiled program rather than one per array, kept across calls
@@ -526,7 +557,7 @@ def sample(
         layout = _carry_shardings(jax.eval_shape(start_carry, states), sharding)
         carry = jit(start_carry, in_shardings=(layout.states,), out_shardings=layout)(states)
         lane_keys = put(lane_keys, sharding.lanes)
-    rao_blackwell = weights == "rao_blackwell"
+    wait(ahead[1])
 
     saver = None
     tails = init_tails(num_lanes, observe.size, tail_depth(num_lanes, observe.size) if has_tours else 0)

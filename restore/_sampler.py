@@ -125,6 +125,12 @@ class AbstractSampler(eqx.Module):
         sampler that needs no calibration)."""
         return self, None
 
+    def calibration_stand_in(self) -> AbstractSampler:
+        """A sampler built as `calibrate` builds its result, with stand-in constants:
+        `restore.sample` compiles a run's programs from it while the pilot runs (`self`
+        for a sampler that needs no calibration)."""
+        return self
+
     def run_facts(self) -> RunFacts:
         """The constants a result needs (none for a sampler without tours)."""
         return RunFacts()
