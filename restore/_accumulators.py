@@ -138,7 +138,8 @@ def add_recorded_tours(sums: LaneSums, records: TourRecords) -> LaneSums:
         )
 
     start = {name: getattr(sums, name) for name in _RECORDED}
-    return sums._replace(**jax.lax.fori_loop(0, records.capacity, add, start))
+    used = jnp.maximum(jnp.max(records.count), jnp.max(records.starts))  # short chunks fill a few slots
+    return sums._replace(**jax.lax.fori_loop(0, used, add, start))
 
 
 def counted_ends(sums_before: LaneSums, info) -> Array:
