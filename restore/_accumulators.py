@@ -118,8 +118,8 @@ def add_recorded_tours(sums: LaneSums, records: TourRecords) -> LaneSums:
     """
     if records.capacity == 0:
         return sums
-    def add(slot, tour_sums: dict[str, Array]) -> dict[str, Array]:
-        s = tour_sums
+
+    def add(slot, s: dict[str, Array]) -> dict[str, Array]:
         count = slot < records.count
         c = count[:, None]
         f, t = records.integral[:, slot], records.duration[:, slot]
