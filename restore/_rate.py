@@ -53,7 +53,7 @@ class PilotEstimate(NamedTuple):
     zero_fraction: float
 
 
-@jit(filtered=True)
+@jit(filtered=True, once=True)
 def _pilot_terms(logdensity_fn, regeneration, key, num_draws: int):
     """`log p` and `log u` at `num_draws` draws of the regeneration, drawn and evaluated in one
     compiled program (per log density, regeneration structure and size; reused by later

@@ -77,13 +77,13 @@ class _Carry(NamedTuple):
     step: Array
 
 
-@jit(static_argnums=1)
+@jit(static_argnums=1, once=True)
 def _lane_keys(key: PRNGKeyArray, num_lanes: int, first_lane: int | Array = 0) -> Array:
     """One key per lane, independent of how many lanes there are (lane `i` is reproducible)."""
     return jax.vmap(lambda i: jax.random.fold_in(key, i))(first_lane + jnp.arange(num_lanes))
 
 
-@jit(filtered=True)
+@jit(filtered=True, once=True)
 def _init(sampler, keys: Array, positions: Array | None, sharding: LaneSharding | None = None):
     keys = unrolled_keys(keys)
     if sharding is not None:
@@ -265,7 +265,7 @@ def _start_carry(states, shape: _CarryShape) -> _Carry:
     )
 
 
-_start_carry_jit = jit(_start_carry, static_argnums=1)
+_start_carry_jit = jit(_start_carry, static_argnums=1, once=True)
 
 
 def _carry_shape(num_lanes: int, observe: Observables, has_tours: bool, capacity: int, given: bool, sharding) -> _CarryShape:
@@ -290,7 +290,7 @@ def _compile_run_ahead(like, init_keys, positions, lane_keys, observables, capac
     return compile_ahead(_init, lambda: (like, init_keys, positions, None), inputs), compile_ahead(_advance, loop_arguments, inputs)
 
 
-@jit
+@jit(once=True)
 def _split_three(key: PRNGKeyArray) -> tuple[PRNGKeyArray, PRNGKeyArray, PRNGKeyArray]:
     """`jax.random.split(key, 3)`, unpacked in one compiled program (not one to split and one to unpack)."""
     return tuple(jax.random.split(key, 3))
@@ -555,7 +555,7 @@ def sample(
     else:  # created in place on the devices, each holding its own lanes
         start_carry = functools.partial(_start_carry, shape=shape)
         layout = _carry_shardings(jax.eval_shape(start_carry, states), sharding)
-        carry = jit(start_carry, in_shardings=(layout.states,), out_shardings=layout)(states)
+        carry = jit(start_carry, in_shardings=(layout.states,), out_shardings=layout, once=True)(states)
         lane_keys = put(lane_keys, sharding.lanes)
     wait(ahead[1])
 

@@ -68,7 +68,7 @@ class LaplaceModes(eqx.Module):
         return logp + 0.5 * (logdet + d * math.log(2 * math.pi))
 
 
-@jit(filtered=True)
+@jit(filtered=True, once=True)
 def _local_expansion(logdensity, ys):
     """Log density, gradient and Hessian at every row of `ys`."""
 
