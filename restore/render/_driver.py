@@ -227,7 +227,7 @@ def render(
     new_chunk = not done and programs.chunk is None
     new_finisher = finishes and programs.finisher is None
     if new_init:
-        programs.init = jax.jit(lambda k: renderer.init(target, k, lanes)).lower(key_init).compile(compiler_options(once=True))
+        programs.init = jax.jit(lambda k: renderer.init(target, k, lanes)).lower(key_init).compile(compiler_options())
     init_fn = programs.init
     # One throwaway call of each newly compiled function, so that a target's own first-call work
     # (e.g. Dr.Jit recording its kernels for these batch sizes) is paid here, outside the budget.
