@@ -72,7 +72,7 @@ def test_an_option_this_xla_lacks_is_left_out(monkeypatch):
 
 def test_a_program_compiled_for_once_computes_the_same_bits(monkeypatch):
     """The emitters change the machine code, not the numbers (against the newer emitters, forced
-    here since the suite's `XLA_FLAGS` select the older ones; negative control: a changed program differs)."""
+    here whatever `XLA_FLAGS` select; negative control: a changed program differs)."""
 
     def draws(key):
         x = jax.random.normal(key, (257, 3))
