@@ -21,12 +21,21 @@ from .regeneration import AbstractRegeneration
 
 
 class MixtureMHState(NamedTuple):
-    """State of one MH lane: the point and `log u(x)` needed by the independence step."""
+    """State of one MH lane: the point (the target's log density and, for gradient kernels, its gradient)."""
 
     position: Float[Array, " d"]
     logdensity: Float[Array, ""]
     logdensity_grad: Float[Array, " d"] | None
-    log_regeneration_density: Float[Array, ""]
+
+
+class _LargeStep(NamedTuple):
+    """What a large step needs beyond the target: a fresh draw `y ~ nu`, `log u(y)` and
+    `log u(x)` at the lane's current position (computed where the step is taken, not kept
+    in the state: a tenth of the lanes or fewer need them)."""
+
+    fresh: Float[Array, " d"]
+    log_u_fresh: Float[Array, ""]
+    log_u_current: Float[Array, ""]
 
 
 class MixtureMH(AbstractSampler):
@@ -89,11 +98,10 @@ class MixtureMH(AbstractSampler):
             position = check_point(position, self.dim, "position", finite=True)
         position = position.astype(self.dtype)
         point, _ = evaluate(self.logdensity, position, self.local.uses_gradient)
-        log_u = self.regeneration.log_prob(position).astype(position.dtype)
-        return MixtureMHState(point.position, point.logdensity, point.grad, log_u)
+        return MixtureMHState(point.position, point.logdensity, point.grad)
 
     def step_lanes(self, keys: PRNGKeyArray, states: MixtureMHState) -> tuple[MixtureMHState, StepInfo]:
-        """`vmap(step)`, with the large-step candidates drawn only for the lanes that take a large step."""
+        """`vmap(step)`, with the large-step draw and densities computed only for the lanes that take a large step."""
         slots = draw_slots(keys.shape[0], self._large_share)
         if slots is None:
             return super().step_lanes(keys, states)
@@ -103,27 +111,32 @@ class MixtureMH(AbstractSampler):
             return self._large(k_choice, state), k_regen
 
         large, regen_keys = jax.vmap(decide)(keys, states)
-        fresh = draw_where(self._fresh, large, slots, regen_keys, states.position)
-        return jax.vmap(self.step)(keys, states, fresh, large)
+        dim = self.dim
+        packed = draw_where(lambda k, x: _pack(self._large_step(k, x)), large, slots, regen_keys, states.position)
+        prepared = _LargeStep(packed[:, :dim], packed[:, dim], packed[:, dim + 1])
+        return jax.vmap(self.step)(keys, states, prepared, large)
 
     def _large(self, key: PRNGKeyArray, state: MixtureMHState) -> Array:
         return jax.random.uniform(key, dtype=state.logdensity.dtype) < self.large_step_probability
 
-    def _fresh(self, key: PRNGKeyArray, position: Array) -> Array:
-        return self.regeneration.sample(key).astype(position.dtype)
+    def _large_step(self, key: PRNGKeyArray, position: Array) -> _LargeStep:
+        fresh = self.regeneration.sample(key).astype(position.dtype)
+        log_u = lambda x: self.regeneration.log_prob(x).astype(position.dtype)
+        return _LargeStep(fresh, log_u(fresh), log_u(position))
 
     def step(
         self,
         key: PRNGKeyArray,
         state: MixtureMHState,
-        fresh: Array | None = None,
+        prepared: _LargeStep | None = None,
         large: Array | None = None,
     ) -> tuple[MixtureMHState, StepInfo]:
         """One MH step: a large step with probability `q`, else a local move.
 
-        `fresh` (the large-step candidate) and `large` (whether this is a large step) may be
-        decided beforehand from this step's key, as the step would decide them: `step_lanes`
-        decides for all lanes at once and draws `fresh` only for the lanes that need it.
+        `large` (whether this is a large step) and `prepared` (its fresh draw and the two
+        regeneration densities) may be computed beforehand from this step's key, as the step
+        would compute them: `step_lanes` decides for all lanes at once and prepares the large
+        step only for the lanes that take one.
         """
         k_choice, k_propose, k_accept, k_regen = jax.random.split(key, 4)
         dtype = state.logdensity.dtype
@@ -133,18 +146,16 @@ class MixtureMH(AbstractSampler):
         point = Point(state.position, state.logdensity, state.logdensity_grad)
         candidate, aux = self.local.propose(k_propose, point, self.logdensity)
         candidate = candidate.astype(state.position.dtype)
-        if fresh is None:
-            fresh = self._fresh(k_regen, state.position)
-        evaluated, invalid = evaluate(self.logdensity, jnp.where(large, fresh, candidate), self.local.uses_gradient)
-        log_u_new = self.regeneration.log_prob(evaluated.position).astype(dtype)
+        if prepared is None:
+            prepared = self._large_step(k_regen, state.position)
+        evaluated, invalid = evaluate(self.logdensity, jnp.where(large, prepared.fresh, candidate), self.local.uses_gradient)
 
         local_point, local_info = self.local.accept(k_accept, point, evaluated, aux)
-        log_ratio = evaluated.logdensity - state.logdensity + state.log_regeneration_density - log_u_new
+        log_ratio = evaluated.logdensity - state.logdensity + prepared.log_u_current - prepared.log_u_fresh
         global_point, global_info = metropolis_accept(k_accept, point, evaluated, log_ratio)
 
         new_point = jax.tree.map(lambda a, b: jnp.where(large, a, b), global_point, local_point)
         accepted = jnp.where(large, global_info.accepted, local_info.accepted)
-        new_log_u = jnp.where(accepted, log_u_new, state.log_regeneration_density)
         one, no = jnp.ones((), dtype), jnp.zeros((), bool)
         info = StepInfo(
             position=state.position,
@@ -162,4 +173,9 @@ class MixtureMH(AbstractSampler):
             negative_rate=no,
             bound_ratio=jnp.zeros((), dtype),
         )
-        return MixtureMHState(new_point.position, new_point.logdensity, new_point.grad, new_log_u), info
+        return MixtureMHState(new_point.position, new_point.logdensity, new_point.grad), info
+
+
+def _pack(step: _LargeStep) -> Array:
+    """One array `(d + 2,)` (what `draw_where` gathers and puts back)."""
+    return jnp.concatenate([step.fresh, step.log_u_fresh[None], step.log_u_current[None]])
