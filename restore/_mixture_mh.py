@@ -121,8 +121,8 @@ class MixtureMH(AbstractSampler):
 
     def _large_step(self, key: PRNGKeyArray, position: Array) -> _LargeStep:
         fresh = self.regeneration.sample(key).astype(position.dtype)
-        log_u = lambda x: self.regeneration.log_prob(x).astype(position.dtype)
-        return _LargeStep(fresh, log_u(fresh), log_u(position))
+        log_u = jax.vmap(self.regeneration.log_prob)(jnp.stack([fresh, position])).astype(position.dtype)
+        return _LargeStep(fresh, log_u[0], log_u[1])  # one traced density: a shorter compilation
 
     def step(
         self,
