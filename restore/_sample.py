@@ -30,7 +30,7 @@ from ._accumulators import (
     update_histogram,
     update_lane_sums,
 )
-from ._ahead import compile_ahead, wait
+from ._ahead import compile_ahead, wait, wait_lowered
 from ._checkpoint import (
     CheckpointError,
     array_digest,
@@ -276,11 +276,15 @@ def _carry_shape(num_lanes: int, observe: Observables, has_tours: bool, capacity
 
 
 def _compile_run_ahead(like, init_keys, positions, lane_keys, observables, capacity: int, rao_blackwell: bool):
-    """Compile the start states' and the run loop's programs in the background while the
-    pilot runs (`_ahead`), for a sampler built like the calibrated one (`like`)."""
+    """Compile the run loop's and the start states' programs in the background while the
+    pilot runs (`_ahead`), for a sampler built like the calibrated one (`like`). The loop
+    is traced first and the start states after it (see `_ahead`)."""
 
     def loop_arguments() -> tuple:
-        states = eqx.filter_eval_shape(_init.__wrapped__, like, init_keys, positions)
+        # The start states' layout from one lane (tracing `vmap` over every lane cost 0.1-0.3 s more).
+        one = [init_keys] if positions is None else [init_keys, positions]
+        lane = jax.eval_shape(like.init, *[jax.ShapeDtypeStruct(a.shape[1:], a.dtype) for a in one])
+        states = jax.tree.map(lambda a: jax.ShapeDtypeStruct((init_keys.shape[0], *a.shape), a.dtype), lane)
         observe = Observables(observables, like.dim, states.logdensity.dtype)
         shape = _carry_shape(init_keys.shape[0], observe, like.has_tours, capacity, positions is not None, None)
         layout = jax.eval_shape(functools.partial(_start_carry, shape=shape), states)
@@ -289,7 +293,8 @@ def _compile_run_ahead(like, init_keys, positions, lane_keys, observables, capac
         return (like, observe, carry, lane_keys, *scalars, rao_blackwell, None)
 
     inputs = (like, init_keys, positions, lane_keys, observables, capacity, rao_blackwell)
-    return compile_ahead(_init, lambda: (like, init_keys, positions, None), inputs), compile_ahead(_advance, loop_arguments, inputs)
+    loop = compile_ahead(_advance, loop_arguments, inputs)
+    return compile_ahead(_init, lambda: (like, init_keys, positions, None), inputs, after=loop), loop
 
 
 @jit(once=True)
@@ -526,6 +531,7 @@ def sample(
         like = sampler.calibration_stand_in()
         ahead = _compile_run_ahead(like, init_keys, positions, lane_keys, observables, capacity, rao_blackwell)
 
+    wait_lowered(ahead[1])  # the pilot's tracing would share Python's lock with the loop's (see `_ahead`)
     sampler, pilot = sampler.calibrate(key_pilot)
     if sharding is not None:
         sampler = _replicate(sampler, sharding)
