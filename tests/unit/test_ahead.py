@@ -1,6 +1,7 @@
 """`restore.sample` compiles the start states and the run loop while its pilot runs, each once."""
 
 import logging
+import threading
 
 import equinox as eqx
 import jax
@@ -9,6 +10,7 @@ import numpy as np
 import pytest
 
 import restore
+from restore._ahead import compile_ahead, wait, wait_lowered
 from restore.local import RandomWalk
 from restore.regeneration import Gaussian
 
@@ -69,3 +71,45 @@ def test_a_stand_in_of_another_structure_only_costs_a_second_compilation(compila
 def _float32_rate(sampler):
     calibrated = sampler.calibrated_to(0.0)
     return eqx.tree_at(lambda s: s.log_rate, calibrated, calibrated.log_rate.astype(jnp.float32))
+
+
+class _Program:
+    """A stand-in for a jitted function: records when it is lowered and compiled; its
+    lowering waits for `release` (or raises, `broken`)."""
+
+    def __init__(self, name: str, events: list, release: threading.Event | None = None, broken: bool = False):
+        self.name, self.events, self.release, self.broken = name, events, release, broken
+
+    def lower(self, *args):
+        if self.release is not None:
+            assert self.release.wait(10)
+        if self.broken:
+            raise RuntimeError(f"{self.name} cannot be lowered")
+        self.events.append(f"{self.name} lowered")
+        return self
+
+    def compile(self):
+        self.events.append(f"{self.name} compiled")
+
+
+@pytest.mark.parametrize("broken", [False, True], ids=["lowered", "failed"])
+def test_a_compilation_after_another_is_traced_once_the_other_is_lowered(broken):
+    """The start states' program is traced only after the run loop's is lowered, or has failed
+    (a failure must not hold the other back); the pilot's caller waits the same way."""
+    events: list[str] = []
+    release = threading.Event()
+    tag = f"test-after-{broken}"  # inputs of their own: not compiled ahead by this process before
+    program = _Program("loop", events, release, broken)
+    loop = compile_ahead(program, lambda: (), (tag, "loop"))
+    init = compile_ahead(_Program("init", events), lambda: events.append("init traced") or (), (tag, "init"), after=loop)
+    assert loop is not None and init is not None
+    try:
+        assert not init.lowered.wait(0.3) and events == []  # the loop is held in its lowering, so is the start
+    finally:
+        release.set()  # whatever the outcome: a held worker would hold up the tests after this one
+    wait_lowered(loop)
+    init.done.result(timeout=10)  # a failed lowering releases the waiting program too
+    wait(loop)
+    assert events.index("init traced") > (-1 if broken else events.index("loop lowered"))
+    assert init.done.result() is True and loop.done.result() is (not broken)
+    assert compile_ahead(program, lambda: (), (tag, "loop")) is None  # once per program and signature
