@@ -12,8 +12,8 @@ Tracing and lowering hold Python's lock, so they run in order of need: the run l
 first, alone (its XLA compilation is the longest step of a first call), then the start
 states' and the pilot's, while XLA compiles the loop. Started all at once they shared
 the lock and delayed the loop's compilation: the demo's first call took about 0.2 s
-longer (medians over 14 fresh processes, alternating: 3.37 against 3.16 s, and 4.32
-against 3.79 s on a noisier day).
+longer (medians over fresh processes, alternating: 3.37 against 3.16 s and 4.32 against
+3.79 s, 14 each; a noisier set of 12 showed no gain).
 
 Each signature is compiled ahead once per process; a compilation that fails here is
 dropped silently (the call itself then compiles the program, and reports the error if
