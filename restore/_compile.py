@@ -16,12 +16,14 @@ Programs that run once per call (the start states, the pilot, key and carry set-
 milliseconds. The loops keep the newer emitters, whose code ran the jump-Restore loop
 (512 lanes, 10-d) 3-15% faster: on the run loop alone (same process, 7 rounds), 1.6 s
 less compile time cost 15% of the run with a Gaussian regeneration and 3% with a
-Student-t mixture, with bit-identical results either way. The renderer's programs keep
-the newer emitters: with the older ones the render loop of a Mitsuba scene compiled for
-over 20 minutes instead of seconds.
+Student-t mixture, with bit-identical results either way. The renderer's programs ask
+for the newer emitters even where `XLA_FLAGS` selects the older ones: with those, the
+render loop of a Mitsuba scene compiled for over 20 minutes instead of seconds.
 
-Each setting applies to the CPU backend only, and not at all when `XLA_FLAGS` sets it
-(then the user's choice stands), and the emitter choice only where this XLA has it.
+Each setting applies to the CPU backend only, and the emitter choice only where this XLA
+has it. `XLA_FLAGS` overrides the level and the emitters of every program but the
+renderer's (then the user's choice stands). The test suite selects the older emitters
+there: its compile time fell by a quarter (`tests/conftest.py`).
 """
 
 from __future__ import annotations
@@ -44,17 +46,20 @@ CPU_OPTIMIZATION_LEVEL = 1
 FUSION_EMITTERS = "xla_cpu_use_fusion_emitters"
 
 
-def compiler_options(once: bool = False) -> dict[str, Any]:
+def compiler_options(once: bool = False, renderer: bool = False) -> dict[str, Any]:
     """The options of restore's programs on the CPU (none on other backends): level 1,
     and for a program that runs `once` per call the older kernel emitters, except what
-    `XLA_FLAGS` sets."""
+    `XLA_FLAGS` sets. The `renderer`'s programs always get the newer emitters (the older
+    ones compile its loop for minutes)."""
     if jax.default_backend() != "cpu":
         return {}
     flags = os.environ.get("XLA_FLAGS", "")
     options: dict[str, Any] = {}
     if "xla_backend_optimization_level" not in flags:
         options["xla_backend_optimization_level"] = CPU_OPTIMIZATION_LEVEL
-    if once and FUSION_EMITTERS not in flags and _has_emitter_choice():
+    if renderer and _has_emitter_choice():
+        options[FUSION_EMITTERS] = True
+    elif once and FUSION_EMITTERS not in flags and _has_emitter_choice():
         options[FUSION_EMITTERS] = False
     return options
 

@@ -227,7 +227,7 @@ def render(
     new_chunk = not done and programs.chunk is None
     new_finisher = finishes and programs.finisher is None
     if new_init:
-        programs.init = jax.jit(lambda k: renderer.init(target, k, lanes)).lower(key_init).compile(compiler_options())
+        programs.init = jax.jit(lambda k: renderer.init(target, k, lanes)).lower(key_init).compile(compiler_options(renderer=True))
     init_fn = programs.init
     # One throwaway call of each newly compiled function, so that a target's own first-call work
     # (e.g. Dr.Jit recording its kernels for these batch sizes) is paid here, outside the budget.
@@ -354,7 +354,7 @@ def _programs(renderer, target, lanes, key, state_shape) -> _Programs:
     try:
         setup = (
             id(target), renderer, lanes, key.shape, str(key.dtype), treedef, tuple((x.shape, str(x.dtype)) for x in leaves),
-            jax.default_backend(), tuple(sorted(compiler_options().items())),
+            jax.default_backend(), tuple(sorted(compiler_options(renderer=True).items())),
         )
         hash(setup)
     except TypeError:  # e.g. a renderer with an array field
@@ -375,7 +375,7 @@ def _compile_chunk(renderer, target, key_run, state_shape, warm_key, warm_state)
     # (the init keeps JAX's keys, where unrolling costs more compile time than it saves)
     run = lambda k, s, n: renderer.run(target, unrolled_keys(k), s, n)  # noqa: E731
     n_spec = jax.ShapeDtypeStruct((), jnp.int32)
-    chunk_fn = jax.jit(run).lower(key_run, state_shape, n_spec).compile(compiler_options())
+    chunk_fn = jax.jit(run).lower(key_run, state_shape, n_spec).compile(compiler_options(renderer=True))
     jax.block_until_ready(chunk_fn(warm_key, warm_state, jnp.asarray(1, jnp.int32)))
     return chunk_fn
 
@@ -419,7 +419,7 @@ def _finisher(renderer, target, lanes, state_shape, warm_key, warm_state):
     programs = []
     for slots in finishing_rungs(lanes):
         run = lambda k, s, n, slots=slots: renderer.finish(target, unrolled_keys(k), s, n, slots)  # noqa: E731
-        finish = jax.jit(run).lower(key_spec, state_shape, n_spec).compile(compiler_options())
+        finish = jax.jit(run).lower(key_spec, state_shape, n_spec).compile(compiler_options(renderer=True))
         jax.block_until_ready(finish(warm_key, warm_state, jnp.asarray(1, jnp.int32)))
         programs.append((slots, finish))
     return tuple(programs)

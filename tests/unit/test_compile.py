@@ -1,5 +1,7 @@
 """restore's programs compile at XLA backend optimisation level 1 on the CPU, unless the user sets a level."""
 
+import os
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -88,3 +90,22 @@ def test_a_program_compiled_for_once_computes_the_same_bits(monkeypatch):
     np.testing.assert_array_equal(once, reference)
     changed = np.asarray(jit(lambda k: draws(k) * (1.0 + 1e-15), once=True)(key))
     assert not np.array_equal(changed, reference)
+
+
+def test_the_renderers_programs_keep_the_newer_emitters_whatever_xla_flags_select(monkeypatch):
+    """The suite selects the older emitters in `XLA_FLAGS` (`tests/conftest.py`); the
+    renderer's options override that (its loop compiles for minutes with the older ones),
+    and the override reaches the compiled program. Negative control: default options."""
+
+    def program(x):
+        return jax.lax.fori_loop(0, 5, lambda i, c: jnp.sin(c) * 1.0001 + jnp.cos(c) ** 2 + c.sum(), x)
+
+    x = jnp.ones((64, 16))
+    assert "--xla_cpu_use_fusion_emitters=false" in os.environ["XLA_FLAGS"]  # set before JAX started
+    older = jax.jit(program).lower(x).compile({}).as_text()
+    assert jax.jit(program).lower(x).compile(compiler_options(once=True)).as_text() == older
+    rendering = jax.jit(program).lower(x).compile(compiler_options(renderer=True)).as_text()
+    assert rendering != older
+    monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_use_fusion_emitters=false")
+    assert compiler_options(renderer=True) == {"xla_backend_optimization_level": 1, _compile.FUSION_EMITTERS: True}
+    assert compiler_options() == compiler_options(once=True) == {"xla_backend_optimization_level": 1}
