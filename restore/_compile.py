@@ -21,9 +21,9 @@ for the newer emitters even where `XLA_FLAGS` selects the older ones: with those
 render loop of a Mitsuba scene compiled for over 20 minutes instead of seconds.
 
 Each setting applies to the CPU backend only, and the emitter choice only where this XLA
-has it. `XLA_FLAGS` overrides the level and the emitters of every program but the
-renderer's (then the user's choice stands). The test suite selects the older emitters
-there: its compile time fell by a quarter (`tests/conftest.py`).
+has it. `XLA_FLAGS` overrides the level of every program and the emitters of every
+program but the renderer's (then the user's choice stands). The test suite selects the
+older emitters in its `XLA_FLAGS`: its compile time fell by a quarter (`tests/conftest.py`).
 """
 
 from __future__ import annotations
