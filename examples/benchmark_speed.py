@@ -22,12 +22,20 @@ and prints steps per second, the ratio to BlackJAX, and the time to the first re
 one call (tracing, compilation, the pilot) against BlackJAX's compilation time. BlackJAX
 runs first in each set-up, so the process's one-time start-up is charged to it.
 
-Usage: python examples/benchmark_speed.py [--lanes 512] [--steps 1500] [--dim 10] [--rounds 5]
+Then a lanes sweep (set-up 1 at 512, 8,192 and 65,536 lanes, the same number of
+lane-steps each: 512 x 12,800, 8,192 x 800, 65,536 x 100), which shows any cost that grows
+with the lanes (host work between chunks, say): BlackJAX RMH, the bare step,
+`restore.sample` for the budget's steps alone (`finish_tours=False`) and with its open
+tours finished after the budget (`num_chunks=1, max_draws=0`, as the ratios of set-up 1),
+and the steps the finishing took. `--sweep-only` runs the sweep alone, `--no-sweep` skips it.
+
+Usage: python examples/benchmark_speed.py [--lanes 512] [--steps 1500] [--dim 10] [--rounds 5] [--sweep-only | --no-sweep]
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import platform
 import time
 from collections.abc import Callable
@@ -119,6 +127,14 @@ def restore_sample(sampler, lanes: int, steps: int) -> Contender:
     return Contender(lambda i: restore.sample(sampler, jax.random.key(i), **kwargs).wall_time, calls[0] - calls[1])
 
 
+def restore_sample_budget(sampler, lanes: int, steps: int) -> Contender:
+    """`restore.sample` for the budget's steps alone: the open tours are dropped, not finished
+    (the estimates of such a run lean towards short tours; this measures the loop)."""
+    kwargs = dict(num_lanes=lanes, num_steps=steps, progress=False, max_draws=0, num_chunks=1, finish_tours=False)
+    restore.sample(sampler, jax.random.key(0), **kwargs)
+    return Contender(lambda i: restore.sample(sampler, jax.random.key(i), **kwargs).wall_time, math.nan)
+
+
 def restore_sample_defaults(sampler, lanes: int, steps: int) -> Contender:
     """A whole repeated `restore.sample` call with its default arguments (50 chunks, thinned draws
     kept, tour records merged on the host), as a user makes it: pilot, set-up and run included."""
@@ -151,24 +167,69 @@ def report(name: str, contenders: dict[str, Contender], work: int, rounds: int) 
         print(f"{label:38s} {rate / 1e6:10.3f} {ratio:11.2f} {compile_seconds:10.2f} {compile_seconds / base_compile:11.2f}")
 
 
+def lanes_sweep(dim: int, rounds: int, lane_steps: int = 6_553_600) -> None:
+    """Set-up 1 at 512, 8,192 and 65,536 lanes, the same lane-steps each (module docstring)."""
+    jump = _setup_one(dim)
+    print(f"\n3. lanes sweep: set-up 1, {lane_steps:,} lane-steps per run, rounds of {rounds}")
+    print(f"{'lanes x steps':>16s} {'':31s} {'M steps/s':>10s} {'/ BlackJAX':>11s}")
+    ratios = {}
+    for lanes in (512, 8192, 65536):
+        steps = lane_steps // lanes
+        x0 = jax.random.normal(jax.random.key(1), (lanes, dim))
+        contenders = {
+            "BlackJAX RMH": blackjax_rmh(_normal, 0.75, x0, steps),
+            "JumpRestore step (no driver)": bare_restore_step(jump.calibrate(jax.random.key(9))[0], lanes, steps),
+            "restore.sample, budget only": restore_sample_budget(jump, lanes, steps),
+            "restore.sample": restore_sample(jump, lanes, steps),
+        }
+        times = {label: [] for label in contenders}
+        for r in range(rounds):
+            for label, contender in contenders.items():
+                times[label].append(contender.once(r + 2))
+        base = np.asarray(times["BlackJAX RMH"])
+        finishing = restore.sample(jump, jax.random.key(1), num_lanes=lanes, num_steps=steps, progress=False, max_draws=0, num_chunks=1)
+        for label in contenders:
+            seconds = np.asarray(times[label])
+            ratio = float(np.median(base / seconds))
+            ratios[lanes, label] = ratio
+            size = f"{lanes:,} x {steps:,}" if label == "BlackJAX RMH" else ""
+            print(f"{size:>16s} {label:31s} {lanes * steps / float(np.median(seconds)) / 1e6:10.3f} {ratio:11.2f}")
+        print(f"{'':16s} finishing after the budget: {finishing.finishing_steps} steps, {finishing.unfinished_tours} tours still open")
+    for label in ("restore.sample, budget only", "restore.sample"):
+        print(f"{label}: ratio at 65,536 lanes / ratio at 512 lanes = {ratios[65536, label] / ratios[512, label]:.2f}")
+
+
+def _normal(x):
+    return -0.5 * jnp.sum(x**2)
+
+
+def _setup_one(dim: int):
+    """Set-up 1's sampler: standard normal target, Gaussian(0, 2.25 I) regeneration, RandomWalk(0.75), T = 10."""
+    return restore.JumpRestore(_normal, RandomWalk(0.75), Gaussian(jnp.zeros(dim), 2.25 * jnp.eye(dim)), tour_length=10.0)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--lanes", type=int, default=512)
     parser.add_argument("--steps", type=int, default=1500)
     parser.add_argument("--dim", type=int, default=10)
     parser.add_argument("--rounds", type=int, default=5)
+    sweep = parser.add_mutually_exclusive_group()
+    sweep.add_argument("--sweep-only", action="store_true", help="run the lanes sweep alone")
+    sweep.add_argument("--no-sweep", action="store_true", help="skip the lanes sweep")
     args = parser.parse_args()
     lanes, steps, dim, rounds = args.lanes, args.steps, args.dim, args.rounds
     print(f"machine: {platform.processor() or platform.machine()}, {jax.device_count()} {jax.default_backend()} device(s), jax {jax.__version__}")
+    if args.sweep_only:
+        lanes_sweep(dim, min(rounds, 3))
+        return
     print(f"{lanes} lanes x {steps} steps, {dim}-d, float64; compile s: BlackJAX's jit compilation, "
           "restore.sample's first call minus its run time (tracing, compilation, pilot)")
 
-    def normal(x):
-        return -0.5 * jnp.sum(x**2)
-
+    normal = _normal
     gaussian = Gaussian(jnp.zeros(dim), 2.25 * jnp.eye(dim))
     local = RandomWalk(0.75)
-    jump = restore.JumpRestore(normal, local, gaussian, tour_length=10.0)
+    jump = _setup_one(dim)
     x0 = jax.random.normal(jax.random.key(1), (lanes, dim))
     report(
         "1. standard normal target, Gaussian(0, 2.25 I) regeneration, RandomWalk(0.75), T = 10",
@@ -207,6 +268,8 @@ def main() -> None:
         lanes * steps,
         rounds,
     )
+    if not args.no_sweep:
+        lanes_sweep(dim, min(rounds, 3))
 
 
 if __name__ == "__main__":

@@ -10,7 +10,6 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from ._sampler import StepInfo
-from ._tour_records import TourRecords
 
 #: Tour durations are binned on a log10 scale over this range for the tail diagnostics.
 HISTOGRAM_RANGE = (-6.0, 6.0)
@@ -24,9 +23,8 @@ class LaneSums(NamedTuple):
     the sums `F, F^2, F T, T, T^2` and the count are all the ratio estimator and its
     standard error need. The open tour's partial sums wait until the tour ends. The
     `all_*` sums cover every step, complete tours or not (for lane-based estimates).
-    The run loop updates the open tour, the `all_*` sums and the counts at every step
-    (`update_lane_sums`); the sums over complete tours and over tour starts once per
-    chunk, from the chunk's tour records (`add_recorded_tours`).
+    The run loop updates them at every step (`update_lane_sums`) and, at the end of each
+    chunk, adds them to the run's totals on the device (`fold`).
     """
 
     open_f: Float[Array, " m"]
@@ -73,25 +71,21 @@ def open_tour_totals(sums: LaneSums, values: Array, weight: Array) -> tuple[Arra
     return sums.open_f + jnp.where(w > 0, w * values, 0.0), sums.open_t + weight
 
 
-def update_lane_sums(sums: LaneSums, values: Array, weight: Array, info: StepInfo) -> LaneSums:
-    """Add one step of every lane: `values` `(L, m)` at the held states, weights `(L,)`.
-
-    Only the per-step fields change here (the open tour, the sums over every step, the
-    counts). The sums over complete tours and over tour starts are added once per chunk,
-    from the chunk's tour records (`add_recorded_tours`): a tenth of the lanes or fewer
-    end a tour at a step, and masked updates of every lane at every step cost a tenth of
-    a jump-Restore run's time.
+def update_step_sums(sums: LaneSums, values: Array, weight: Array, info: StepInfo, integral: Array, duration: Array) -> LaneSums:
+    """Add one step of every lane to the fields that change at every step: `values` `(L, m)`
+    at the held states, weights `(L,)`, and the open tours' totals this step included
+    (`open_tour_totals`). The sums over complete tours and tour starts change only for the
+    lanes that end a tour or draw a start, a tenth of them or fewer (`add_events`).
     """
     w = weight[:, None]
     wf = jnp.where(w > 0, w * values, 0.0)
     wf2 = jnp.where(w > 0, w * values**2, 0.0)
-    open_f, open_t = open_tour_totals(sums, values, weight)
     end = info.regenerated
     bound_ratio = info.bound_ratio
     zero = jnp.zeros((), jnp.int32)
     return sums._replace(
-        open_f=jnp.where(end[:, None], 0.0, open_f),
-        open_t=jnp.where(end, 0.0, open_t),
+        open_f=jnp.where(end[:, None], 0.0, integral),
+        open_t=jnp.where(end, 0.0, duration),
         open_steps=jnp.where(end, 0, sums.open_steps + 1),
         all_f=sums.all_f + wf,
         all_f2=sums.all_f2 + wf2,
@@ -107,39 +101,37 @@ def update_lane_sums(sums: LaneSums, values: Array, weight: Array, info: StepInf
     )
 
 
-def add_recorded_tours(sums: LaneSums, records: TourRecords) -> LaneSums:
-    """Add a chunk's recorded tours (`F`, `T`) and tour starts (importance weights) to the
-    sums over complete tours and over starts.
+def add_events(
+    sums: LaneSums, index: Array, ended: Array, drawn: Array, integral: Array, duration: Array, log_importance_weight: Array
+) -> LaneSums:
+    """Add the tours that ended (integrals `(S, m)`, durations `(S,)`) and the starts drawn
+    (log importance weights `(S,)`) at lanes `index` `(S,)` (distinct; `L` or more: none)
+    to the sums over complete tours and over starts.
 
-    The records hold every counted tour and every drawn start of the chunk, in order (a
-    chunk stops when some lane's buffer is full), so adding them one slot at a time gives
-    the same sums, bit for bit, as adding each tour at the step it ended. Samplers without
-    tours keep no records, and their tour sums stay zero.
+    Only those lanes' rows are read and written, so a step costs in proportion to the
+    lanes that end a tour; the sums are the same, bit for bit, as adding zeros at the
+    other lanes.
     """
-    if records.capacity == 0:
-        return sums
-
-    def add(slot, s: dict[str, Array]) -> dict[str, Array]:
-        count = slot < records.count
-        c = count[:, None]
-        f, t = records.integral[:, slot], records.duration[:, slot]
-        log_iw = jnp.where(slot < records.starts, records.log_importance_weight[:, slot], -jnp.inf)
-        return dict(
-            sum_f=s["sum_f"] + jnp.where(c, f, 0.0),
-            sum_f2=s["sum_f2"] + jnp.where(c, f**2, 0.0),
-            sum_ft=s["sum_ft"] + jnp.where(c, f * t[:, None], 0.0),
-            sum_t=s["sum_t"] + jnp.where(count, t, 0.0),
-            sum_t2=s["sum_t2"] + jnp.where(count, t**2, 0.0),
-            num_tours=s["num_tours"] + count.astype(jnp.int32),
-            max_tour=jnp.maximum(s["max_tour"], jnp.where(count, t, 0.0)),
-            log_iw_sum=jnp.logaddexp(s["log_iw_sum"], log_iw),
-            log_iw_sum2=jnp.logaddexp(s["log_iw_sum2"], 2.0 * log_iw),
-            num_iw=s["num_iw"] + (slot < records.starts).astype(jnp.int32),
-        )
-
-    start = {name: getattr(sums, name) for name in _RECORDED}
-    used = jnp.maximum(jnp.max(records.count), jnp.max(records.starts))  # short chunks fill a few slots
-    return sums._replace(**jax.lax.fori_loop(0, used, add, start))
+    num_lanes = sums.all_t.shape[0]
+    safe = jnp.minimum(index, num_lanes - 1)
+    e, e2 = ended, ended[:, None]
+    t = jnp.where(ended, duration, 0.0)
+    f = jnp.where(e2, integral, 0.0)
+    log_iw = jnp.where(drawn, log_importance_weight, -jnp.inf)
+    fields = dict(
+        sum_f=lambda old: old + f,
+        sum_f2=lambda old: old + jnp.where(e2, integral**2, 0.0),
+        sum_ft=lambda old: old + jnp.where(e2, integral * duration[:, None], 0.0),
+        sum_t=lambda old: old + t,
+        sum_t2=lambda old: old + t * t,
+        num_tours=lambda old: old + e.astype(jnp.int32),
+        max_tour=lambda old: jnp.maximum(old, t),
+        log_iw_sum=lambda old: jnp.logaddexp(old, log_iw),
+        log_iw_sum2=lambda old: jnp.logaddexp(old, 2.0 * log_iw),
+        num_iw=lambda old: old + drawn.astype(jnp.int32),
+    )
+    new = {name: getattr(sums, name).at[index].set(update(getattr(sums, name)[safe]), mode="drop") for name, update in fields.items()}
+    return sums._replace(**new)
 
 
 def counted_ends(sums_before: LaneSums, info) -> Array:
@@ -164,12 +156,12 @@ def init_histogram(dtype) -> tuple[Array, Array]:
 
 
 # How each field of `LaneSums` is reduced, in one table: `(kind, per observable, integer)`.
-# Sums that grow with the run ("sum", "log_sum" combined with logaddexp, "max") are drained
-# to float64 / int64 host totals after every chunk and restarted on the device, so float32
-# runs keep full precision over any number of steps (a float32 sum of 10^6 terms can be
-# off by percents) and int32 counts never overflow. "state" fields (the open tour's
-# partial sums, its step counter, `skip_first`) stay on the device and are taken from the
-# latest chunk.
+# Sums that grow with the run ("sum", "log_sum" combined with logaddexp, "max") are kept
+# per chunk, then added to the run's totals on the device and restarted (`fold`); the
+# float sums are added with their rounding errors carried along in float32 runs, so those
+# keep full precision over any number of steps (a float32 sum of 10^6 terms can be off by
+# percents). "state" fields (the open tour's partial sums, its step counter,
+# `skip_first`) are the lane's current state, the same in the chunk's sums and the totals.
 _FIELDS: dict[str, tuple[str, bool, bool]] = {
     "open_f": ("state", True, False), "open_t": ("state", False, False),
     "sum_f": ("sum", True, False), "sum_f2": ("sum", True, False), "sum_ft": ("sum", True, False),
@@ -185,15 +177,75 @@ _FIELDS: dict[str, tuple[str, bool, bool]] = {
 if tuple(_FIELDS) != LaneSums._fields:  # pragma: no cover - a new field without a reduction is a bug
     raise AssertionError("every LaneSums field needs its reduction in _FIELDS, in order")
 _ADDITIVE = tuple(name for name, (kind, *_) in _FIELDS.items() if kind == "sum")
+_FLOAT_SUMS = tuple(name for name, (kind, _, integer) in _FIELDS.items() if kind == "sum" and not integer)
 _LOG_ADDITIVE = tuple(name for name, (kind, *_) in _FIELDS.items() if kind == "log_sum")
-#: The fields summed from the tour records once per chunk (`add_recorded_tours`), not at every step.
-_RECORDED = ("sum_f", "sum_f2", "sum_ft", "sum_t", "sum_t2", "num_tours", "max_tour", "log_iw_sum", "log_iw_sum2", "num_iw")
 _MAXIMA = tuple(name for name, (kind, *_) in _FIELDS.items() if kind == "max")
 
 
+class Totals(NamedTuple):
+    """The run's totals, on the device: per-lane sums and the tour histogram.
+
+    Attributes:
+        sums: per-lane totals of every chunk so far (`LaneSums`; the state fields are the
+            lanes' current ones).
+        histogram: `(counts, total time)` of complete tour durations in log10 bins.
+        error: in float32 runs, the rounding errors of the float sums and of the histogram,
+            carried along as they are added (compensated summation), else `None`.
+    """
+
+    sums: LaneSums
+    histogram: tuple[Array, Array]
+    error: tuple | None
+
+
+def _compensated(dtype) -> bool:
+    return jnp.finfo(dtype).bits < 64
+
+
+def init_totals(sums: LaneSums, histogram: tuple[Array, Array]) -> Totals:
+    """Zero totals shaped like a chunk's sums and histogram."""
+    dtype = sums.all_t.dtype
+    error = None
+    if _compensated(dtype):
+        error = (tuple(jnp.zeros_like(getattr(sums, name)) for name in _FLOAT_SUMS), jax.tree.map(jnp.zeros_like, histogram))
+    return Totals(restart_sums(sums), jax.tree.map(jnp.zeros_like, histogram), error)
+
+
+def _two_sum(a: Array, b: Array) -> tuple[Array, Array]:
+    """`a + b` and its rounding error (Knuth's TwoSum: exact in any order of magnitude)."""
+    s = a + b
+    v = s - a
+    return s, (a - (s - v)) + (b - v)
+
+
+def _add(total: Array, part: Array, error: Array | None) -> tuple[Array, Array | None]:
+    """`total + part`, with `error` the part of the sum lost so far: it is added back with the next
+    part (Kahan's feedback), so it stays below the total's last bit."""
+    if error is None:
+        return total + part, None
+    return _two_sum(total, part + error)
+
+
+def fold(totals: Totals, sums: LaneSums, histogram: tuple[Array, Array]) -> Totals:
+    """The totals with one chunk's sums and histogram added (on the device)."""
+    merged = {name: getattr(totals.sums, name) + getattr(sums, name) for name in _ADDITIVE if name not in _FLOAT_SUMS}
+    merged.update({name: jnp.logaddexp(getattr(totals.sums, name), getattr(sums, name)) for name in _LOG_ADDITIVE})
+    merged.update({name: jnp.maximum(getattr(totals.sums, name), getattr(sums, name)) for name in _MAXIMA})
+    merged.update({name: getattr(sums, name) for name, (kind, *_) in _FIELDS.items() if kind == "state"})
+    errors, histogram_errors = totals.error if totals.error is not None else ((None,) * len(_FLOAT_SUMS), (None, None))
+    new_errors = []
+    for name, error in zip(_FLOAT_SUMS, errors):
+        merged[name], error = _add(getattr(totals.sums, name), getattr(sums, name), error)
+        new_errors.append(error)
+    counts, count_error = _add(totals.histogram[0], histogram[0], histogram_errors[0])
+    times, time_error = _add(totals.histogram[1], histogram[1], histogram_errors[1])
+    error = None if totals.error is None else (tuple(new_errors), (count_error, time_error))
+    return Totals(LaneSums(**merged), (counts, times), error)
+
+
 def restart_sums(sums: LaneSums) -> LaneSums:
-    """The device sums after a drain: totals restarted (zero, or `-inf` for log sums), state kept."""
-    restarted = {name: jnp.zeros_like(getattr(sums, name)) for name in _ADDITIVE}
+    """The chunk's sums after they joined the totals: restarted (zero, or `-inf` for log sums), state kept."""
+    restarted = {name: jnp.zeros_like(getattr(sums, name)) for name in _ADDITIVE + _MAXIMA}
     restarted.update({name: jnp.full_like(getattr(sums, name), -jnp.inf) for name in _LOG_ADDITIVE})
     return sums._replace(**restarted)
 
@@ -205,24 +257,15 @@ def _host(x) -> np.ndarray:
     return x.astype(np.int64) if np.issubdtype(x.dtype, np.integer) else x
 
 
-def drain_sums(total: LaneSums | None, sums: LaneSums) -> LaneSums:
-    """Host totals plus the device sums of one chunk (NumPy, float64 / int64).
-
-    Additive fields are added, log sums combined with `logaddexp`, maxima maximised; the
-    state fields (open tour, `skip_first`) are taken from `sums`, the latest.
-    """
-    sums = LaneSums(*(_host(x) for x in sums))
-    if total is None:
-        return sums
-    merged = {name: getattr(total, name) + getattr(sums, name) for name in _ADDITIVE}
-    merged.update({name: np.logaddexp(getattr(total, name), getattr(sums, name)) for name in _LOG_ADDITIVE})
-    merged.update({name: np.maximum(getattr(total, name), getattr(sums, name)) for name in _MAXIMA})
-    return sums._replace(**merged)
-
-
-def drain_histogram(total: tuple | None, histogram: tuple) -> tuple[np.ndarray, np.ndarray]:
-    """Host totals of the tour histogram plus the device histogram of one chunk (per-device rows summed)."""
-    counts, times = (np.asarray(h, np.float64) for h in histogram)
+def host_totals(totals: Totals) -> tuple[LaneSums, tuple[np.ndarray, np.ndarray]]:
+    """The totals on the host as float64 / int64, rounding errors added back; a histogram
+    kept per device (a leading device axis) is summed over the devices."""
+    sums = LaneSums(*(_host(x) for x in totals.sums))
+    counts, times = (_host(h) for h in totals.histogram)
+    if totals.error is not None:
+        errors, (count_error, time_error) = totals.error
+        sums = sums._replace(**{name: getattr(sums, name) + _host(e) for name, e in zip(_FLOAT_SUMS, errors)})
+        counts, times = counts + _host(count_error), times + _host(time_error)
     if counts.ndim == 2:  # one partial histogram per device
         counts, times = counts.sum(axis=0), times.sum(axis=0)
-    return (counts, times) if total is None else (total[0] + counts, total[1] + times)
+    return sums, (counts, times)

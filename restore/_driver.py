@@ -5,10 +5,15 @@ side: how long each chunk is (a fixed length, or sized from the measured time pe
 under a time budget), the progress meter, the checkpoint cadence (every so many steps
 and/or seconds, when the budget is spent, on Ctrl-C) and Ctrl-C itself. What a run
 accumulates is pluggable: the caller's `advance(n)` runs a chunk of at most `n` steps
-with its own accumulators (the lane sums, tour histogram and tour records of
-`restore.sample`; the film of a renderer), drains them into float64 host totals and
-commits the new state in one assignment, so an interrupt never leaves a chunk half
-counted.
+with its own accumulators (the lane sums, tour histogram and tail buffers of
+`restore.sample`; the film of a renderer) and commits the new state in one assignment,
+so an interrupt never leaves a chunk half counted.
+
+`advance(n)` may also return at once, with the chunk dispatched to the device and a
+function that waits for it, commits it and returns its steps. Under a step budget the
+driver then dispatches the next chunk before it waits for the last one, so the device
+never waits for the host between chunks (the host's work per chunk, a few scalars for
+the progress bar, overlaps the device's).
 """
 
 from __future__ import annotations
@@ -116,8 +121,11 @@ def drive(
     """Run chunks until the budget is spent or Ctrl-C, with progress and checkpoints.
 
     Arguments:
-        advance: `advance(n)` runs at most `n` more steps (a chunk may stop early, e.g. when
-            tour records are full), commits them and returns the steps taken.
+        advance: `advance(n)` runs at most `n` more steps (a chunk may stop early), commits
+            them and returns the steps taken; or dispatches them and returns a function
+            that waits for the chunk, commits it and returns the steps taken (pipelined:
+            with a step budget only, the next chunk is dispatched before the last is
+            waited for).
         budget: when to stop.
         chunk: steps per chunk (the chunk boundaries fix the random keys: with a step
             budget the same arguments give the same chunks, so results do not depend on
@@ -151,10 +159,23 @@ def drive(
             last_save, saved = time.perf_counter(), done
 
     mark = next_mark(done)
+    waiting: list[Callable[[], int]] = []  # a dispatched chunk not yet waited for (pipelined advances)
+    dispatched = done
+
+    def finish_chunk(steps: int) -> None:
+        nonlocal done, mark
+        done += steps
+        meter.update(*report(done, elapsed()))
+        if on_chunk is not None:
+            on_chunk()
+        if done >= mark or (save_every_seconds is not None and time.perf_counter() - last_save >= save_every_seconds):
+            write()
+            mark = next_mark(done)
+
     with meter.shown():
         try:
-            while budget.steps is None or done < budget.steps:
-                n = chunk if budget.steps is None else min(chunk, budget.steps - done)
+            while budget.steps is None or dispatched < budget.steps:
+                n = chunk if budget.steps is None else min(chunk, budget.steps - dispatched)
                 if budget.seconds is not None:
                     if elapsed() >= budget.seconds and done > 0:  # at least one step, ever
                         break
@@ -164,15 +185,21 @@ def drive(
                         per_step = max((time.perf_counter() - start) / (done - first), 1e-9)
                         slice_ = min(2.0, max(budget.seconds / 20, 0.05))
                         n = min(n, max(1, math.ceil(min(budget.seconds - elapsed(), slice_) / per_step)))
-                done += advance(n)
-                meter.update(*report(done, elapsed()))
-                if on_chunk is not None:
-                    on_chunk()
-                if done >= mark or (
-                    save_every_seconds is not None and time.perf_counter() - last_save >= save_every_seconds
-                ):
-                    write()
-                    mark = next_mark(done)
+                outcome = advance(n)
+                if callable(outcome):
+                    dispatched += n
+                    if budget.seconds is None:  # chunk sizes are known ahead: keep one chunk in flight
+                        if waiting:
+                            finish_chunk(waiting.pop()())
+                        waiting.append(outcome)
+                        continue
+                    outcome = outcome()
+                    dispatched += outcome - n
+                else:
+                    dispatched += outcome
+                finish_chunk(outcome)
+            while waiting:
+                finish_chunk(waiting.pop()())
         except KeyboardInterrupt:
             interrupted = True
     write()

@@ -10,7 +10,7 @@ import numpy as np
 
 from ._accumulators import LaneSums
 from ._result import SampleResult
-from ._tails import TourTails
+from ._tails import merge_tails
 from ._trace import merge_traces
 
 # What every part must share for the lanes to be parts of one run.
@@ -53,7 +53,8 @@ def merge_results(results: Sequence[SampleResult]) -> SampleResult:
     concat = lambda *parts: np.concatenate(parts, axis=0)
     sums = LaneSums(**{f: concat(*(np.asarray(getattr(r.sums, f)) for r in results)) for f in LaneSums._fields})
     final_state = jax.tree.map(concat, *(r.final_state for r in results))
-    tails = None if first.tails is None else TourTails(*(concat(*parts) for parts in zip(*(r.tails for r in results))))
+    offsets = np.cumsum([0] + [r.num_lanes for r in results[:-1]]).tolist()
+    tails = None if first.tails is None else merge_tails([r.tails for r in results if r.tails is not None], offsets)
     return dataclasses.replace(
         first,
         sums=sums,

@@ -395,6 +395,11 @@ class AbstractRestore(AbstractSampler):
         from these keys beforehand (as the step would draw them)."""
         return self._in_phase(state, lambda k, log_rates: self._jump_step(k, keys, state, log_rates, killed, start))
 
+    def tour_end_fraction(self) -> float | None:
+        """The share of a stationary run's jump events that are kills (`None` for diffusions,
+        whose kills and starts fall on separate candidate events)."""
+        return None if self.is_diffusion else self._kill_fraction()
+
     def _kill_fraction(self) -> float | None:
         """The share of a stationary run's events that are kills, `1 / (1 + r T)` for tours of
         mean duration `T` and local rate `r` (`None` when the tours' length is not known)."""

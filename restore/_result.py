@@ -50,7 +50,7 @@ class SampleResult:
         observables: what was streamed, with names and shapes.
         sums: per-lane float64 totals (`LaneSums`, a leading lane axis).
         histogram: `(counts, total time)` of complete tour durations in log10 bins.
-        tails: per-lane largest tour terms, for the Pareto `k_hat` (`None` without tours).
+        tails: the run's largest tour terms with their lanes, for the Pareto `k_hat` (`None` without tours).
         draws: thinned states `(stored, lanes, d)`; `draw_weights` their weights.
         draw_weights: `(stored, lanes)`.
         final_state: every lane's last state.
@@ -107,7 +107,7 @@ class SampleResult:
             observables=observables,
             sums=to_np(sums),
             histogram=to_np(histogram),
-            tails=None if tails is None else TourTails(*(np.asarray(a) for a in tails)),
+            tails=tails,
             draws=np.asarray(draws),
             draw_weights=np.asarray(draw_weights),
             final_state=to_np(final_state),
@@ -173,7 +173,7 @@ class SampleResult:
         if self._default_method(method) == "tours":
             est = tour_ratio(pick(s.sum_f)[:, cut], pick(s.sum_f2)[:, cut], pick(s.sum_ft)[:, cut], pick(s.sum_t), pick(s.sum_t2), pick(s.num_tours))
             n = int(np.sum(pick(s.num_tours)))
-            tails = self.tails if lanes is None else select_lanes(self.tails, lanes)
+            tails = self.tails if lanes is None else select_lanes(self.tails, lanes, self.num_lanes)
             k_hat = np.array([residual_k(tails, slot.start + j, float(v), n) for j, v in enumerate(est.value.reshape(-1))])
             est = est._replace(k_hat=k_hat, k_limit=k_hat_limit(n), caveat=self._open_tours_caveat(lanes))
         else:
@@ -214,7 +214,7 @@ class SampleResult:
         if not self.has_tours or self.log_rate is None:
             raise ValueError("normalising constants come from Restore runs (with a log_rate)")
         s = self.sums if lanes is None else type(self.sums)(*(np.asarray(a)[lanes] for a in self.sums))
-        tails = self.tails if lanes is None or self.tails is None else select_lanes(self.tails, lanes)
+        tails = self.tails if lanes is None or self.tails is None else select_lanes(self.tails, lanes, self.num_lanes)
         if method == "tours":
             n = float(np.sum(s.num_tours))
             if n < 2:

@@ -1,4 +1,4 @@
-"""Run many independent lanes of a sampler in a jitted scan, streaming estimates."""
+"""Run many independent lanes of a sampler in jitted chunks, with every sum and tail kept on the device."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import os
 import time
 import warnings
 from collections.abc import Callable, Mapping
-from typing import Any, Literal, NamedTuple
+from typing import Literal
 
 import equinox as eqx
 import jax
@@ -18,17 +18,7 @@ import numpy as np
 from jaxtyping import Array, PRNGKeyArray
 
 from ._accumulators import (
-    LaneSums,
-    add_recorded_tours,
-    counted_ends,
-    drain_histogram,
-    drain_sums,
-    init_histogram,
-    init_lane_sums,
-    open_tour_totals,
-    restart_sums,
-    update_histogram,
-    update_lane_sums,
+    host_totals,
 )
 from ._ahead import compile_ahead, wait, wait_lowered
 from ._checkpoint import (
@@ -44,37 +34,29 @@ from ._driver import Budget, Meter, drive
 from ._observables import Observables
 from ._progress import console_note
 from ._result import SampleResult
+from ._run_loop import CarryShape, RunCarry, advance, carry_shardings, finish, finishing_width, start_carry
 from ._sampler import AbstractSampler, check_sampler
 from ._sharding import (
     Devices,
     LaneSharding,
     from_every_process,
     lane_sharding,
-    map_devices,
     map_lanes,
     put,
     to_host,
     wait_for_every_process,
 )
-from ._tails import Pending, TourTails, add_records, init_tails, settle, tail_depth
+from ._tails import tail_rows, tour_tails
 from ._threefry import unrolled_keys
-from ._tour_records import TourRecords, emptied, has_room, init_records, record, records_per_lane
-from ._trace import chunk_totals, run_trace
+from ._trace import run_trace
 from ._validation import check_integer, check_interval
 
 Weights = Literal["rao_blackwell", "time"]
 
 logger = logging.getLogger("restore")
 
-
-class _Carry(NamedTuple):
-    states: Any
-    sums: LaneSums
-    histogram: tuple[Array, Array]
-    tours: TourRecords
-    draws: Array
-    draw_weights: Array
-    step: Array
+#: Checkpoints of `restore.sample` hold the run's state in this layout (older ones are refused).
+STATE_LAYOUT = "device-totals/2"
 
 
 @jit(static_argnums=1, once=True)
@@ -95,184 +77,19 @@ def _init(sampler, keys: Array, positions: Array | None, sharding: LaneSharding 
     return jax.vmap(sampler.init)(keys, positions)
 
 
-def _active(carry: _Carry) -> Array:
-    """Lanes inside a tour that counts (an open tour after a regeneration)."""
-    return (carry.sums.open_steps > 0) & ~carry.sums.skip_first
-
-
-@jit(filtered=True)
-def _advance(
-    sampler,
-    observe: Observables,
-    carry: _Carry,
-    lane_keys: Array,
-    length: Array,
-    finishing: Array,
-    thin: Array,
-    rao_blackwell: bool,
-    sharding: LaneSharding | None = None,
-):
-    """Run every lane for `length` steps, or (`finishing`) until each lane's open tour ends.
-
-    One compiled program serves every chunk length, thinning and both modes (all are
-    traced), so a run compiles its step function once, and runs of other lengths reuse it.
-    The carry's totals (sums, histogram, tour records) are those the host drained after the
-    previous chunk, so the program restarts them first. When finishing, no new tour is started:
-    a lane whose tour has ended stops (its state and sums are frozen). Dropping the tours
-    still open when the step budget runs out would bias the estimates towards short
-    tours (long tours are the ones likely to straddle the end). Finishing them makes the
-    number of tours of each lane a stopping time, so by Wald's identity the pooled sums
-    `sum F` and `sum T` have the right ratio of expectations.
-
-    With a `sharding` (static; `None` on one device) the lanes are split over a mesh:
-    the per-lane work (the sampler's step and the observables) and the histogram update
-    run under `shard_map`, each device on its own lanes and its own partial histogram,
-    and the carry's layout is pinned inside the loop. The only reduction over devices is
-    the "any lane still in a tour" test, evaluated only when finishing.
-    """
-
-    def cond(loop):
-        carry, done = loop
-        room = has_room(carry.tours)  # a lane's tour records are full: stop, the host takes them
-        if sharding is not None:  # no other cross-device reduction per step unless finishing
-            return (done < length) & room & jax.lax.cond(finishing, lambda: jnp.any(_active(carry)), lambda: jnp.asarray(True))
-        return (done < length) & room & (~finishing | jnp.any(_active(carry)))
-
-    def body(loop):
-        carry, done = loop
-        keys = jax.vmap(lambda k: jax.random.fold_in(k, carry.step))(lane_keys)
-        if sharding is None:
-            new_states, info = sampler.step_lanes(keys, carry.states)
-            observed = info.position
-            values = jax.vmap(observe)(observed)
-        else:
-            lanes = map_lanes(_observed_step, sharding, (sampler, observe), keys, carry.states)
-            new_states, info, observed, values = lanes
-        on = ~finishing | _active(carry)
-        weight = jnp.where(on, info.expected_holding_time if rao_blackwell else info.holding_time, 0.0)
-        integrals, durations = open_tour_totals(carry.sums, values, weight)
-        ended = counted_ends(carry.sums, info) & on
-        if not sampler.has_tours:  # no tour ever ends: the histogram stays empty (its scatters cost 3% of an MH run)
-            histogram = carry.histogram
-        elif sharding is None:
-            histogram = update_histogram(carry.histogram, durations, ended)
-        else:  # one partial histogram per device, summed on the host
-            histogram = map_devices(_update_partial_histogram, sharding, carry.histogram, durations, ended)
-        tours = carry.tours
-        if tours.capacity > 0:
-            drawn = info.start_drawn & on
-            args = (tours, durations, integrals, ended, info.log_importance_weight, drawn)
-            tours = record(*args) if sharding is None else map_devices(record, sharding, *args)
-        keep = lambda new, old: jnp.where(on.reshape((-1,) + (1,) * (new.ndim - 1)), new, old)
-        sums = jax.tree.map(keep, update_lane_sums(carry.sums, values, weight, info), carry.sums)
-        states = jax.tree.map(keep, new_states, carry.states)
-        draws, draw_weights = carry.draws, carry.draw_weights
-        if draws.shape[0] > 0:
-            slot = carry.step // thin
-            draws, draw_weights = jax.lax.cond(
-                ~finishing & (carry.step % thin == 0) & (slot < draws.shape[0]),
-                lambda d, w: (d.at[slot].set(observed), w.at[slot].set(weight)),
-                lambda d, w: (d, w),
-                draws,
-                draw_weights,
-            )
-        new = _Carry(states, sums, histogram, tours, draws, draw_weights, carry.step + 1)
-        if sharding is not None:
-            new = jax.lax.with_sharding_constraint(new, _carry_shardings(new, sharding))
-        return new, done + 1
-
-    lane_keys = unrolled_keys(lane_keys)  # the same bits, a faster program on the CPU
-    carry = _restarted(carry)  # the host drained the previous chunk's totals (a no-op on a fresh carry)
-    if sharding is not None:
-        carry = jax.lax.with_sharding_constraint(carry, _carry_shardings(carry, sharding))
-    carry, done = jax.lax.while_loop(cond, body, (carry, jnp.zeros((), jnp.int32)))
-    return carry._replace(sums=add_recorded_tours(carry.sums, carry.tours)), done
-
-
-def _observed_step(sampler_and_observe, key, state):
-    """One lane's step, with the state its weight refers to and the observables there."""
-    sampler, observe = sampler_and_observe
-    new_state, info = sampler.step(key, state)
-    observed = info.position
-    return new_state, info, observed, observe(observed)
-
-
-def _update_partial_histogram(histogram, durations, mask):
-    """Add one device's lanes to its partial histogram (a leading axis of length 1)."""
-    counts, times = update_histogram((histogram[0][0], histogram[1][0]), durations, mask)
-    return counts[None], times[None]
-
-
-def _carry_shardings(carry: _Carry, sharding: LaneSharding) -> _Carry:
-    """Lane axes split over the mesh; the partial histograms one per device; the step counter replicated."""
-    lanes = lambda tree: jax.tree.map(lambda _: sharding.lanes, tree)
-    return _Carry(
-        states=lanes(carry.states),
-        sums=lanes(carry.sums),
-        histogram=jax.tree.map(lambda _: sharding.lanes, carry.histogram),  # one row per device
-        tours=lanes(carry.tours),
-        draws=sharding.lanes_second,
-        draw_weights=sharding.lanes_second,
-        step=sharding.replicated,
-    )
-
-
 def _replicate(tree, sharding: LaneSharding):
     """Every array leaf of `tree` (e.g. a sampler's parameters) replicated over the mesh."""
     arrays, rest = eqx.partition(tree, eqx.is_array)
     return eqx.combine(jax.tree.map(lambda x: put(x, sharding.replicated), arrays), rest)
 
 
-class _Run(NamedTuple):
-    """A run's progress: the device carry (its totals already counted) and the float64 host totals drained from it
-    (sums, tour histogram, and each lane's largest tours, merged from the tour records;
-    the latest chunks' records may wait in `pending`, see `settled`)."""
-
-    carry: _Carry
-    sums: LaneSums | None
-    histogram: tuple | None
-    tails: TourTails
-    pending: Pending = Pending()
-
-    def settled(self) -> _Run:
-        """The run with its pending tour records merged into the top sets (what checkpoints and results hold)."""
-        return self._replace(tails=settle(self.tails, self.pending), pending=Pending())
+_start_carry_jit = jit(start_carry, static_argnums=1, once=True)
 
 
-class _CarryShape(NamedTuple):
-    """The sizes of a run's carry beyond its states (hashable: a static argument)."""
-
-    num_lanes: int
-    size: int
-    depth: int
-    capacity: int
-    given_positions: bool
-    num_devices: int  # 0: not sharded
-
-
-def _start_carry(states, shape: _CarryShape) -> _Carry:
-    """The carry at the start of a run: zero sums, empty records and draws, step 0."""
-    dtype, (num_lanes, size, depth, capacity, given, devices) = states.logdensity.dtype, shape
-    histogram = init_histogram(dtype)
-    if devices:  # sharded: one partial histogram per device
-        histogram = jax.tree.map(lambda h: jnp.broadcast_to(h, (devices,) + h.shape), histogram)
-    return _Carry(
-        states=states,
-        sums=init_lane_sums(num_lanes, size, dtype, jnp.full((num_lanes,), given)),
-        histogram=histogram,
-        tours=init_records(num_lanes, size, depth, dtype),
-        draws=jnp.zeros((capacity, num_lanes, states.position.shape[-1]), dtype),
-        draw_weights=jnp.zeros((capacity, num_lanes), dtype),
-        step=jnp.zeros((), jnp.int32),
-    )
-
-
-_start_carry_jit = jit(_start_carry, static_argnums=1, once=True)
-
-
-def _carry_shape(num_lanes: int, observe: Observables, has_tours: bool, capacity: int, given: bool, sharding) -> _CarryShape:
-    depth = records_per_lane(num_lanes, observe.size) if has_tours else 0
-    return _CarryShape(num_lanes, observe.size, depth, capacity, given, 0 if sharding is None else sharding.num_devices)
+def _carry_shape(num_lanes: int, observe: Observables, has_tours: bool, capacity: int, given: bool, sharding) -> CarryShape:
+    devices = 0 if sharding is None else sharding.num_devices
+    rows = tail_rows(num_lanes // max(devices, 1), observe.size) if has_tours else 0
+    return CarryShape(num_lanes, observe.size, rows, capacity, given, devices)
 
 
 def _compile_run_ahead(like, init_keys, positions, lane_keys, observables, capacity: int, rao_blackwell: bool):
@@ -287,14 +104,19 @@ def _compile_run_ahead(like, init_keys, positions, lane_keys, observables, capac
         states = jax.tree.map(lambda a: jax.ShapeDtypeStruct((init_keys.shape[0], *a.shape), a.dtype), lane)
         observe = Observables(observables, like.dim, states.logdensity.dtype)
         shape = _carry_shape(init_keys.shape[0], observe, like.has_tours, capacity, positions is not None, None)
-        layout = jax.eval_shape(functools.partial(_start_carry, shape=shape), states)
+        layout = jax.eval_shape(functools.partial(start_carry, shape=shape), states)
         carry = jax.tree.map(lambda a: np.zeros(a.shape, a.dtype), layout)  # NumPy: no program to compile
         scalars = (np.zeros((), np.int32), np.zeros((), bool), np.zeros((), np.int32))  # length, finishing, thin
         return (like, observe, carry, lane_keys, *scalars, rao_blackwell, None)
 
     inputs = (like, init_keys, positions, lane_keys, observables, capacity, rao_blackwell)
-    loop = compile_ahead(_advance, loop_arguments, inputs)
+    loop = compile_ahead(advance, loop_arguments, inputs)
     return compile_ahead(_init, lambda: (like, init_keys, positions, None), inputs, after=loop), loop
+
+
+def _zeros_like(tree):
+    """NumPy zeros shaped like `tree`'s arrays (arguments to compile a program for, with no program to make them)."""
+    return jax.tree.map(lambda a: np.zeros(a.shape, a.dtype), tree)
 
 
 @jit(once=True)
@@ -303,25 +125,18 @@ def _split_three(key: PRNGKeyArray) -> tuple[PRNGKeyArray, PRNGKeyArray, PRNGKey
     return tuple(jax.random.split(key, 3))
 
 
-def _restarted(carry: _Carry) -> _Carry:
-    """The carry with its sums, histogram and tour records restarted (the host has drained them)."""
-    return carry._replace(
-        sums=restart_sums(carry.sums), histogram=jax.tree.map(jnp.zeros_like, carry.histogram), tours=emptied(carry.tours)
-    )
-
-
 class _Saver:
-    """Saves a run's progress to its checkpoint file and loads it back (onto the devices of a sharded run)."""
+    """Saves a run's carry to its checkpoint file and loads it back (onto the devices of a sharded run)."""
 
-    def __init__(self, path, fingerprint: dict, layout: _Carry | None, tails: TourTails):
-        self.path, self.fingerprint, self.layout, self.tails = path, fingerprint, layout, tails
+    def __init__(self, path, fingerprint: dict, layout: RunCarry | None):
+        self.path, self.fingerprint, self.layout = path, fingerprint, layout
 
-    def save(self, run: _Run, *, done: int, wall_time: float, finished=False, finishing_steps=0, unfinished=0):
+    def save(self, carry: RunCarry, *, done: int, wall_time: float, finished=False, finishing_steps=0, unfinished=0):
         """Write the run to the file. With several processes every process gathers the run (a
         collective), process 0 writes it, and all wait until it is written."""
         header = dict(self.fingerprint, done=int(done), wall_time=float(wall_time), finished=bool(finished))
         header.update(finishing_steps=int(finishing_steps), unfinished=int(unfinished))
-        host = to_host(run) if self.layout is not None else run
+        host = to_host(carry)
         if jax.process_index() == 0:
             save_checkpoint(self.path, host, header)
         wait_for_every_process(f"restore checkpoint {done} {finished}")
@@ -343,15 +158,11 @@ class _Saver:
             )
         return found
 
-    def load(self, carry: _Carry) -> tuple[_Run, dict]:
-        host = to_host((carry.sums, carry.histogram))
-        like = _Run(carry, drain_sums(None, host[0]), drain_histogram(None, host[1]), self.tails)
-        run, header = load_checkpoint(self.path, like, self.fingerprint)
+    def load(self, carry: RunCarry) -> tuple[RunCarry, dict]:
+        restored, header = load_checkpoint(self.path, carry, self.fingerprint)
         if self.layout is not None:
-            restored = jax.tree.map(put, run.carry, self.layout)
-        else:
-            restored = jax.tree.map(jnp.asarray, run.carry)
-        return run._replace(carry=restored), header
+            return jax.tree.map(put, restored, self.layout), header
+        return jax.tree.map(jnp.asarray, restored), header
 
 
 def _thinning(num_steps: int, num_lanes: int, max_draws: int, thin: int | None) -> tuple[int, int]:
@@ -561,18 +372,17 @@ def sample(
     if sharding is None:
         carry = _start_carry_jit(states, shape)  # one compiled program rather than one per array, kept across calls
     else:  # created in place on the devices, each holding its own lanes
-        start_carry = functools.partial(_start_carry, shape=shape)
-        layout = _carry_shardings(jax.eval_shape(start_carry, states), sharding)
-        carry = jit(start_carry, in_shardings=(layout.states,), out_shardings=layout, once=True)(states)
+        start = functools.partial(start_carry, shape=shape)
+        layout = carry_shardings(jax.eval_shape(start, states), sharding)
+        carry = jit(start, in_shardings=(layout.states,), out_shardings=layout, once=True)(states)
         lane_keys = put(lane_keys, sharding.lanes)
     wait(ahead[1])
 
     saver = None
-    tails = init_tails(num_lanes, observe.size, tail_depth(num_lanes, observe.size) if has_tours else 0)
-    run = _Run(carry, None, None, tails)
     done, finishing_steps, unfinished, finished, spent = 0, 0, 0, False, 0.0
     if checkpoint is not None:
         fingerprint = {
+            "state_layout": STATE_LAYOUT,
             "key": key_fingerprint(key),
             "sampler": type(sampler).__name__,
             "sampler_arrays": array_digest(sampler),
@@ -591,44 +401,51 @@ def sample(
             "finish_tours": bool(finish_tours),
             "num_devices": 1 if sharding is None else sharding.num_devices,
         }
-        saver = _Saver(checkpoint, fingerprint, layout, tails)
+        saver = _Saver(checkpoint, fingerprint, layout)
         if saver.should_resume(resume):
-            run, header = saver.load(carry)
+            carry, header = saver.load(carry)
             done, spent, finished = header["done"], header["wall_time"], header["finished"]
             finishing_steps, unfinished = header["finishing_steps"], header["unfinished"]
-            if int(run.carry.step) != done + finishing_steps:
-                raise CheckpointError(f"checkpoint {checkpoint} is inconsistent: step {int(run.carry.step)}, header {done}")
+            if int(carry.step) != done + finishing_steps:
+                raise CheckpointError(f"checkpoint {checkpoint} is inconsistent: step {int(carry.step)}, header {done}")
 
-    def advance_and_drain(run: _Run, length, finishing) -> tuple[_Run, Array]:
-        """Advance every lane, then move the chunk's sums to the float64 host totals."""
-        args = (lane_keys, jnp.asarray(length, jnp.int32), jnp.asarray(finishing), jnp.asarray(thin, jnp.int32), rao_blackwell, sharding)
-        advanced, steps_taken = _advance(sampler, observe, run.carry, *args)
-        host_sums, host_histogram, records = to_host((advanced.sums, advanced.histogram, advanced.tours))  # waits for the chunk
-        sums, histogram = drain_sums(run.sums, host_sums), drain_histogram(run.histogram, host_histogram)
-        tails, pending = add_records(run.tails, run.pending, records)  # the tours join each lane's largest
-        if not finishing:
-            trace_rows.append(chunk_totals(host_sums, advanced.step, steps_taken))
-        return _Run(advanced, sums, histogram, tails, pending), int(steps_taken)  # drained: the next chunk restarts them
+    scalars = (jnp.asarray(thin, jnp.int32), rao_blackwell, sharding)
+    width = finishing_width(num_lanes // (1 if sharding is None else sharding.num_devices))
+    run: RunCarry = carry  # the committed carry: the last chunk the host has waited for
+    head = carry  # the carry of the last chunk dispatched (the next chunk starts from it)
+    trace_rows: list[tuple] = []  # per-chunk totals, from the chunks' reports
 
-    trace_rows: list[tuple] = []  # per-chunk totals, from the sums each chunk drains anyway
-    label = f"{type(sampler).__name__}: {num_lanes} lanes"
-    if sharding is not None:
-        label += f" on {sharding.num_devices} devices"
+    def dispatch(length: int) -> Callable[[], int]:
+        """Dispatch a chunk after the last one dispatched; the function returned waits for it and commits it."""
+        nonlocal head
+        carry, report = advance(sampler, observe, head, lane_keys, jnp.asarray(length, jnp.int32), jnp.asarray(False), *scalars)
+        head = carry
 
-    def advance(length: int) -> int:
-        nonlocal run
-        advanced = jax.block_until_ready(advance_and_drain(run, length, False))
-        run = advanced[0]  # one assignment: all or nothing
-        return advanced[1]
+        def commit() -> int:
+            nonlocal run
+            steps, time_, accepted, regenerations, _ = (np.asarray(x) for x in report)  # waits for the chunk
+            run = carry  # one assignment: all or nothing
+            trace_rows.append((int(run.step), int(steps) * num_lanes, float(time_), float(accepted), float(regenerations)))
+            return int(steps)
+
+        return commit
 
     def save(_steps: int, wall_time: float) -> None:
         assert saver is not None
-        saver.save(run.settled(), done=int(run.carry.step), wall_time=wall_time)  # the committed run's own count
+        saver.save(run, done=int(run.step), wall_time=wall_time)  # the committed run's own count
 
+    finisher = None
+    if width is not None and has_tours and finish_tours and sharding is None and os.environ.get("RESTORE_COMPILE_AHEAD", "1") != "0":
+        # the narrow finishing program compiles in the background while the budget runs
+        arguments = lambda: (sampler, observe, _zeros_like(carry), lane_keys, np.zeros((), np.int32), rao_blackwell, None, width)
+        finisher = compile_ahead(finish, arguments, (sampler, observe, carry, lane_keys, rao_blackwell, width))
+    label = f"{type(sampler).__name__}: {num_lanes} lanes"
+    if sharding is not None:
+        label += f" on {sharding.num_devices} devices"
     outcome = drive(
-        advance,
+        dispatch,
         budget=Budget(steps=num_steps),
-        chunk=chunk,  # a chunk stops early when a lane's tour records are full
+        chunk=chunk,
         done=done,
         spent=spent,
         meter=Meter(progress, label, num_steps, "steps", completed=done),
@@ -640,26 +457,23 @@ def sample(
     session_start, spent = time.perf_counter(), outcome.elapsed
     elapsed = lambda: spent + time.perf_counter() - session_start  # noqa: E731
     if interrupted:
-        done = int(run.carry.step)  # the last chunk that finished
+        done = int(run.step)  # the last chunk that finished
         warnings.warn(f"interrupted after {done} of {num_steps} steps; returning the partial result", stacklevel=2)
-    if run.sums is None:  # interrupted before the first chunk finished: nothing to report yet
-        host = to_host((run.carry.sums, run.carry.histogram))
-        run = run._replace(sums=drain_sums(None, host[0]), histogram=drain_histogram(None, host[1]))
     if has_tours and not interrupted and finish_tours and not finished:
         try:
-            ended, extra = advance_and_drain(run, num_steps, True)
-            drained = ended.sums  # the host sums of the finishing chunk: `_active`'s fields, on the host
-            assert drained is not None
-            extra, still_open = int(extra), int(np.sum((drained.open_steps > 0) & ~drained.skip_first))
+            limit = jnp.asarray(num_steps, jnp.int32)
+            if width is None:  # every lane until the last open tour ends
+                ended, report = advance(sampler, observe, run, lane_keys, limit, jnp.asarray(True), *scalars)
+            else:  # a narrower batch of the open lanes
+                wait(finisher)
+                ended, report = finish(sampler, observe, run, lane_keys, limit, rao_blackwell, sharding, width)
+            extra, still_open = int(report.steps), int(report.open_tours)  # waits for the finishing
             run, finishing_steps, unfinished = ended, extra, still_open
         except KeyboardInterrupt:  # keep the budget's result; its open tours are dropped
             interrupted = True
             warnings.warn("interrupted while finishing the open tours; returning the result without them", stacklevel=2)
     if saver is not None and not interrupted and not finished:
-        run = run.settled()
-        saver.save(
-            run, done=done, wall_time=elapsed(), finished=True, finishing_steps=finishing_steps, unfinished=unfinished
-        )
+        saver.save(run, done=done, wall_time=elapsed(), finished=True, finishing_steps=finishing_steps, unfinished=unfinished)
     if unfinished:
         warnings.warn(
             f"{unfinished} lanes still had an open tour after {finishing_steps} extra steps; those tours are "
@@ -669,17 +483,19 @@ def sample(
             stacklevel=2,
         )
     wall_time = elapsed()
-    carry = to_host(run.carry) if sharding is not None else run.carry  # numpy, gathered over devices (and processes)
+    host = to_host(run)  # numpy, gathered over devices (and processes)
+    sums, histogram = host_totals(host.totals)
+    stored_rows = min(stored, math.ceil(done / thin))
     return SampleResult.from_run(
         sampler=sampler,
         pilot=pilot,
         observables=observe,
-        sums=run.sums,
-        histogram=run.histogram,
-        tails=run.settled().tails if has_tours else None,
-        draws=np.asarray(carry.draws)[: min(stored, math.ceil(done / thin))],  # no slicing program per length
-        draw_weights=np.asarray(carry.draw_weights)[: min(stored, math.ceil(done / thin))],
-        final_state=carry.states,
+        sums=sums,
+        histogram=histogram,
+        tails=tour_tails(host.tails) if has_tours else None,
+        draws=np.asarray(host.draws)[:stored_rows],
+        draw_weights=np.asarray(host.draw_weights)[:stored_rows],
+        final_state=host.states,
         num_steps=done,
         finishing_steps=finishing_steps,
         thin=thin,

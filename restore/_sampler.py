@@ -110,6 +110,12 @@ class AbstractSampler(eqx.Module):
         """
         return jax.vmap(self.step)(keys, states)
 
+    def tour_end_fraction(self) -> float | None:
+        """The expected share of lanes that end a tour (or draw a tour's start) at a step, if
+        known: the run loop sizes the batches it gathers those lanes in by it (`None`:
+        unknown, a quarter is assumed). Any value gives the same results."""
+        return None
+
     @property
     def is_diffusion(self) -> bool:
         """Steps are thinning candidates of a diffusion (their weights are `1 / Gamma`)."""

@@ -20,10 +20,11 @@ def record(arrays: dict, name: str, result) -> None:
 
 @contextlib.contextmanager
 def ctrl_c_after(chunks: int):
-    """Inside, `restore.sample` is interrupted (`KeyboardInterrupt`) when it starts chunk `chunks + 1`."""
+    """Inside, `restore.sample` is interrupted (`KeyboardInterrupt`) when it dispatches chunk
+    `chunks + 1`: chunk `chunks` is then in flight, so the first `chunks - 1` are committed."""
     import restore._sample as sample_module
 
-    advance, calls = sample_module._advance, []
+    advance, calls = sample_module.advance, []
 
     def interrupting(*args, **kwargs):
         calls.append(1)
@@ -31,8 +32,8 @@ def ctrl_c_after(chunks: int):
             raise KeyboardInterrupt
         return advance(*args, **kwargs)
 
-    sample_module._advance = interrupting
+    sample_module.advance = interrupting
     try:
         yield
     finally:
-        sample_module._advance = advance
+        sample_module.advance = advance

@@ -9,7 +9,7 @@ import numpy as np
 
 from .._accumulators import HISTOGRAM_BINS, HISTOGRAM_RANGE
 from .._pareto import gpd_fit, tail_length
-from .._tails import largest_of_lanes
+from .._tails import longest_durations
 from ._axes import axes_or_new
 
 
@@ -20,7 +20,7 @@ class TourTail(NamedTuple):
         num_tours: complete tours `n`.
         edges: tour durations at the edges of the duration histogram's bins (log-spaced).
         survival: share of tours longer than each edge, from the histogram.
-        largest: the longest tours, exact (from the per-lane top sets), longest first.
+        largest: the longest tours, exact (from the run's tail buffer), longest first.
         threshold: the GPD threshold (the `tail_length(n) + 1`-th longest tour); NaN
             when the tail cannot be fitted.
         k_hat: the fitted tail shape (the `k_hat` of `tour_statistics`).
@@ -51,7 +51,7 @@ def tour_tail(result) -> TourTail:
     """The tour-length distribution of a Restore run and the GPD fit of its tail.
 
     The bulk comes from the run's log-binned histogram of complete tour durations, the
-    tail from each lane's longest tours (`result.tails`), which give the run's longest
+    tail from the run's tail buffer (`result.tails`), which holds the run's longest
     tours exactly; the fit is the one behind `k_hat` (`restore._pareto`).
     """
     if not getattr(result, "has_tours", False) or result.tails is None:
@@ -64,7 +64,7 @@ def tour_tail(result) -> TourTail:
     # known from its upper edge on.
     edges = np.logspace(*HISTOGRAM_RANGE, HISTOGRAM_BINS + 1)[1:]
     survival = np.concatenate([np.cumsum(counts[::-1])[::-1][1:], [0.0]]) / max(counts.sum(), 1.0)
-    largest = np.sort(largest_of_lanes(result.tails.duration))[::-1]
+    largest = longest_durations(result.tails)
     mean = float(np.sum(result.sums.sum_t)) / n
     threshold = k_hat = sigma = math.nan
     top = largest[: tail_length(n) + 1]

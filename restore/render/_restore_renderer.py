@@ -46,9 +46,10 @@ colour, each splat's contribution `rgb / lum` has luminance 1): the image's tota
 is `c sum T / N`. Its noise averages out like a mean of `N` i.i.d. tours only if `T` has
 a finite variance, and as fast only if no few tours hold most of `sum T`. Two
 diagnostics say so: the effective number of tours `(sum T)^2 / sum T^2` (Kish's, as for
-importance weights), and the Pareto shape `k_hat` of the durations, fitted to the largest
-of each lane's `TAIL_DEPTH` longest tours (`restore._pareto`, as for the core's
-estimates). `render` warns when `k_hat > TAIL_WARNING`: a few long tours in bright
+importance weights), and the Pareto shape `k_hat` of the durations, fitted to the longest
+tours of the render, which a run-wide buffer on the device keeps exactly
+(`restore._exceedances`, the same buffer as the core's tail diagnostics; `restore._pareto`,
+as for the core's estimates). `render` warns when `k_hat > TAIL_WARNING`: a few long tours in bright
 regions (the fireflies of path tracing; the caustic of the pool scene) then carry much
 of the light, and another render can differ by more than this one's noise suggests.
 
@@ -80,12 +81,12 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
+from .._exceedances import Exceedances, init_exceedances, largest, offer
 from .._jump_restore import JumpRestore
 from .._pareto import pareto_k
 from .._rate import kill_log_probability
 from .._restore import RestoreState
 from .._speculation import speculative_steps
-from .._tails import largest_of_lanes
 from ..local import AbstractLocalKernel
 from ..regeneration import AbstractRegeneration, UniformTorus
 from ._film import empty_film, splat
@@ -103,8 +104,14 @@ from ._renderer import (
     xp_of,
 )
 
-#: Each lane keeps its this many longest tours (for the tail shape of the tour durations).
-TAIL_DEPTH = 8
+#: The buffer of the longest tours holds this many durations per lane (at least `MIN_TAIL_ROWS`).
+TAIL_ROWS_PER_LANE = 8
+MIN_TAIL_ROWS = 2**13
+
+
+def tail_rows(lanes: int) -> int:
+    """Rows of the buffer of the longest tour durations: a power of two."""
+    return 1 << max(int(max(MIN_TAIL_ROWS, TAIL_ROWS_PER_LANE * lanes) - 1).bit_length(), 1)
 
 
 class RestoreParams(NamedTuple):
@@ -158,15 +165,15 @@ class RestoreTally(NamedTuple):
 class RestoreRenderState(NamedTuple):
     """State of a Restore render: the core sampler's lane states, each lane's local moves in its
     current tour and how many were accepted (the acceptance guess of speculative finishing),
-    its tour's duration so far and its `TAIL_DEPTH` longest finished tours (`-inf`: none yet),
-    which lanes are in a counted tour (`in_tour`), whether new tours still start (`starting`; false once
+    its tour's duration so far, the longest finished tours of the render (`tails`), which
+    lanes are in a counted tour (`in_tour`), whether new tours still start (`starting`; false once
     a complete-tours render finishes its open tours), constants and sums."""
 
     lanes: RestoreState
     tour_moves: Int[Array, " N"]
     tour_accepted: Int[Array, " N"]
     tour_duration: Float[Array, " N"]
-    longest: Float[Array, "N K"]
+    tails: Exceedances
     in_tour: Bool[Array, " N"]
     starting: Bool[Array, ""]
     params: RestoreParams
@@ -201,21 +208,19 @@ def _add_events(tally, target, info, counted, log_kill_rate, moves, starting, ev
     )
 
 
-def _end_tours(state, duration: Float[Array, " N"], ended: Bool[Array, " N"]) -> dict[str, Any]:
+def _end_tours(state, duration: Float[Array, " N"], ended: Bool[Array, " N"], lane: Array | None = None) -> dict[str, Any]:
     """The fields of `state` after the counted tours that `ended` (of `duration`, their
-    events up to the last one included) are added to the lanes' sets of longest tours and
-    to the duration sums; their lanes' running durations restart at 0."""
-    longest = state.longest
-    slot = jnp.argmin(longest, axis=1)
-    replace = ended & (duration > jnp.min(longest, axis=1))
-    hit = (jnp.arange(longest.shape[1])[None, :] == slot[:, None]) & replace[:, None]
+    events up to the last one included) are offered to the buffer of the longest tours
+    (`lane`: the lanes' indices, default `0 ... N - 1`) and added to the duration sums; their
+    lanes' running durations restart at 0."""
+    lane = jnp.arange(duration.shape[0], dtype=jnp.int32) if lane is None else lane
+    batch = min(state.tails.capacity // 2, max(32, duration.shape[0] // 4))
+    tails = offer(state.tails, duration[:, None], lane, ended, 0, batch)
     finished = jnp.where(ended, duration, 0.0)
     tally = state.tally._replace(
         duration=state.tally.duration + jnp.sum(finished), duration_sq=state.tally.duration_sq + jnp.sum(finished**2)
     )
-    return dict(
-        longest=jnp.where(hit, duration[:, None], longest), tour_duration=jnp.where(ended, 0.0, duration), tally=tally
-    )
+    return dict(tails=tails, tour_duration=jnp.where(ended, 0.0, duration), tally=tally)
 
 
 class AbstractPSSRestore(AbstractRenderer):
@@ -339,7 +344,7 @@ class AbstractPSSRestore(AbstractRenderer):
         zeros, ones = jnp.zeros(lanes, jnp.int32), jnp.ones(lanes, bool)
         return RestoreRenderState(
             states, zeros, zeros, jnp.zeros(lanes, jnp.float32),
-            jnp.full((lanes, TAIL_DEPTH), -jnp.inf, jnp.float32), ones, jnp.asarray(True), params,
+            init_exceedances(tail_rows(lanes), 1, jnp.float32), ones, jnp.asarray(True), params,
             _zero_tally(target.num_pixels),
         )
 
@@ -352,6 +357,10 @@ class AbstractPSSRestore(AbstractRenderer):
             )
 
     def step(self, target, key: PRNGKeyArray, state: RestoreRenderState) -> RestoreRenderState:
+        return self._step(target, key, state)
+
+    def _step(self, target, key: PRNGKeyArray, state: RestoreRenderState, lane: Array | None = None) -> RestoreRenderState:
+        """One step of every lane of `state` (`lane`: their indices in the render, default all in order)."""
         sampler = self.sampler(target, state.params)
         n, moves, counted = state.tour_moves.shape[0], state.tour_moves, state.in_tour
         lanes, info = sampler.step_lanes(lane_keys(key, n), state.lanes)
@@ -366,7 +375,7 @@ class AbstractPSSRestore(AbstractRenderer):
         state = state._replace(
             lanes=lanes, tour_moves=tour_moves, tour_accepted=tour_accepted, in_tour=in_tour, tally=tally
         )
-        return state._replace(**_end_tours(state, duration, killed))
+        return state._replace(**_end_tours(state, duration, killed, lane))
 
     @property
     def speculates(self) -> bool:
@@ -411,9 +420,9 @@ class AbstractPSSRestore(AbstractRenderer):
         part = state._replace(
             lanes=jax.tree.map(take, state.lanes), tour_moves=take(state.tour_moves),
             tour_accepted=take(state.tour_accepted), tour_duration=take(state.tour_duration),
-            longest=take(state.longest), in_tour=take(state.in_tour),
+            in_tour=take(state.in_tour),
         )
-        part = self.step(target, key, part)
+        part = self._step(target, key, part, index.astype(jnp.int32))
         was_open = state.in_tour[index]  # lanes taken to fill the slots keep their state
 
         def put(whole, x):
@@ -425,7 +434,6 @@ class AbstractPSSRestore(AbstractRenderer):
             tour_moves=put(state.tour_moves, part.tour_moves),
             tour_accepted=put(state.tour_accepted, part.tour_accepted),
             tour_duration=put(state.tour_duration, part.tour_duration),
-            longest=put(state.longest, part.longest),
             in_tour=put(state.in_tour, part.in_tour),
         )
 
@@ -468,12 +476,12 @@ class AbstractPSSRestore(AbstractRenderer):
     def tail_statistics(self, state: RestoreRenderState, tally: RestoreTally) -> dict[str, float]:
         """Of the finished tours' durations `T` (module docstring): `tour_k_hat`, their Pareto
         shape (NaN with too few tours); `effective_tours`, `(sum T)^2 / sum T^2`;
-        `tour_duration_mean`, `sum T / N` (expected: `Z / c`); from the lanes' sets of
+        `tour_duration_mean`, `sum T / N` (expected: `Z / c`); from the buffer of the
         longest tours and the host totals."""
         tours, total, squares = int(tally.kills), float(tally.duration), float(tally.duration_sq)
-        largest = largest_of_lanes(np.asarray(state.longest, np.float64))
+        longest = largest(jax.tree.map(np.asarray, state.tails), 0).column(0, 0)
         return {
-            "tour_k_hat": pareto_k(largest, tours) if tours else math.nan,
+            "tour_k_hat": pareto_k(longest, tours) if tours else math.nan,
             "effective_tours": total**2 / squares if squares > 0 else math.nan,
             "tour_duration_mean": total / tours if tours else math.nan,
         }

@@ -105,10 +105,11 @@ def test_sigkill_then_sigint_then_resume_is_bit_identical(reference, tmp_path):
 
 
 def test_ctrl_c_saves_the_partial_run(reference, tmp_path, monkeypatch):
-    """KeyboardInterrupt between chunks: the partial result is returned and saved; resuming completes it."""
+    """KeyboardInterrupt between chunks: the partial result is returned and saved; resuming completes it.
+    The interrupt comes as the fifth chunk is dispatched, while the fourth runs: three are committed."""
     import restore._sample as sample_module
 
-    original, calls = sample_module._advance, []
+    original, calls = sample_module.advance, []
 
     def interrupted_advance(*args, **kwargs):
         calls.append(1)
@@ -116,12 +117,12 @@ def test_ctrl_c_saves_the_partial_run(reference, tmp_path, monkeypatch):
             raise KeyboardInterrupt
         return original(*args, **kwargs)
 
-    monkeypatch.setattr(sample_module, "_advance", interrupted_advance)
-    with pytest.warns(UserWarning, match="interrupted after 640 of 8000 steps"):
+    monkeypatch.setattr(sample_module, "advance", interrupted_advance)
+    with pytest.warns(UserWarning, match="interrupted after 480 of 8000 steps"):
         partial = child.run(tmp_path / "run.ckpt")
-    assert partial.interrupted and partial.num_steps == 640
-    assert read_header(tmp_path / "run.ckpt")["done"] == 640
-    monkeypatch.setattr(sample_module, "_advance", original)
+    assert partial.interrupted and partial.num_steps == 480
+    assert read_header(tmp_path / "run.ckpt")["done"] == 480
+    monkeypatch.setattr(sample_module, "advance", original)
     assert_identical(child.arrays(child.run(tmp_path / "run.ckpt")), reference)
 
 

@@ -70,7 +70,7 @@ def test_the_final_run_reuses_the_programs_compiled_for_its_stage(spread, traced
     # One loop program and one start program per regeneration structure the stages tried; the
     # final run (four times as long, calibrated from the stage's log Z) compiles neither again.
     structures = {(s.family, s.num_components) for s in spread.stages if s.kind == "adapt"}
-    assert 1 <= traced.count("_advance") <= len(structures), (traced.count("_advance"), structures)
+    assert 1 <= traced.count("advance") <= len(structures), (traced.count("advance"), structures)
     assert traced.count("_init") <= len(structures), (traced.count("_init"), structures)
 
 

@@ -1,92 +1,102 @@
-"""The sums over complete tours and tour starts, added once per chunk from the tour records."""
+"""The per-lane sums: tour ends added at their lanes only, and chunks added to the run's totals on the device."""
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from restore._accumulators import add_recorded_tours, init_lane_sums
-from restore._tour_records import init_records, record
+from restore._accumulators import LaneSums, add_events, fold, host_totals, init_histogram, init_lane_sums, init_totals
 
-LANES, SIZE, DEPTH = 6, 3, 5
+LANES, SIZE = 6, 3
 
 
-def recorded(seed: int, dtype=jnp.float64):
-    """Records of a few steps, as the run loop writes them: each lane ends tours and draws
-    starts at random steps, so lanes hold different counts; slots past a lane's count keep
-    whatever an earlier chunk left there."""
-    rng = np.random.default_rng(seed)
-    records = init_records(LANES, SIZE, DEPTH, dtype)
-    stale = jnp.asarray(rng.normal(size=(LANES, DEPTH, SIZE)) * 1e6, dtype)  # an earlier chunk's leftovers
-    records = records._replace(integral=stale, duration=jnp.full((LANES, DEPTH), 1e6, dtype))
-    tours, starts = [[] for _ in range(LANES)], [[] for _ in range(LANES)]
-    for _ in range(12):
-        ended = rng.random(LANES) < 0.35
-        drawn = rng.random(LANES) < 0.35
-        ended &= np.asarray(records.count) < DEPTH  # a chunk stops before a buffer overflows
-        drawn &= np.asarray(records.starts) < DEPTH
-        t = rng.exponential(size=LANES)
-        f = rng.normal(size=(LANES, SIZE)) * t[:, None]
-        log_iw = rng.normal(size=LANES)
-        args = (jnp.asarray(t, dtype), jnp.asarray(f, dtype), jnp.asarray(ended), jnp.asarray(log_iw, dtype), jnp.asarray(drawn))
-        records = record(records, *args)
-        for lane in range(LANES):
-            if ended[lane]:
-                tours[lane].append((np.asarray(args[0])[lane], np.asarray(args[1])[lane]))
-            if drawn[lane]:
-                starts[lane].append(np.asarray(args[3])[lane])
-    return records, tours, starts
+def _events(rng, dtype):
+    """One step's tour ends and starts at random lanes, as the run loop gathers them: distinct
+    lanes in order, the batch padded with out-of-range lanes."""
+    lanes = np.flatnonzero(rng.random(LANES) < 0.5)
+    ended = rng.random(lanes.size) < 0.7
+    drawn = rng.random(lanes.size) < 0.7
+    t = rng.exponential(size=lanes.size)
+    f = rng.normal(size=(lanes.size, SIZE)) * t[:, None]
+    w = rng.normal(size=lanes.size)
+    pad = 2  # slots of the batch that hold no lane
+    index = np.concatenate([lanes, np.full(pad, LANES)])
+    cat = lambda a, fill: np.concatenate([a, np.full((pad,) + a.shape[1:], fill, a.dtype)])
+    args = (cat(ended, True), cat(drawn, True), cat(f, 1e6), cat(t, 1e6), cat(w, 1e6))  # padding would poison the sums
+    return index, lanes, ended, drawn, t, f, w, tuple(jnp.asarray(a, dtype if a.dtype.kind == "f" else None) for a in args)
 
 
 @pytest.mark.parametrize("dtype", [jnp.float64, jnp.float32])
-def test_recorded_tours_give_the_sums_of_adding_each_tour_when_it_ends(dtype):
-    records, tours, starts = recorded(1, dtype)
-    assert 0 < int(records.count.min()) and int(records.count.max()) == DEPTH  # lanes differ; one is full
-    before = init_lane_sums(LANES, SIZE, dtype, jnp.zeros(LANES, bool))
-    before = before._replace(sum_t=jnp.full(LANES, 2.5, dtype), num_tours=jnp.full(LANES, 7, jnp.int32))
-    sums = jax.jit(add_recorded_tours)(before, records)
-    for lane in range(LANES):
-        # the tours in the order they ended, added one at a time in the run's dtype
-        sum_t, sum_t2, max_t = dtype(2.5), dtype(0), dtype(0)
-        sum_f, sum_f2, sum_ft = (np.zeros(SIZE, dtype) for _ in range(3))
-        for t, f in tours[lane]:
-            sum_t, sum_t2, max_t = sum_t + t, sum_t2 + t * t, max(max_t, t)
-            sum_f, sum_f2, sum_ft = sum_f + f, sum_f2 + f * f, sum_ft + f * t
-        np.testing.assert_array_equal(np.asarray(sums.sum_t)[lane], sum_t)
-        np.testing.assert_array_equal(np.asarray(sums.sum_t2)[lane], sum_t2)
-        np.testing.assert_array_equal(np.asarray(sums.max_tour)[lane], max_t)
-        np.testing.assert_array_equal(np.asarray(sums.sum_f)[lane], sum_f)
-        np.testing.assert_array_equal(np.asarray(sums.sum_f2)[lane], sum_f2)
-        np.testing.assert_array_equal(np.asarray(sums.sum_ft)[lane], sum_ft)
-        assert int(sums.num_tours[lane]) == 7 + len(tours[lane])
-        assert int(sums.num_iw[lane]) == len(starts[lane])
-        log_iw = np.asarray(starts[lane], np.float64)
-        expected = np.logaddexp.reduce(log_iw) if len(log_iw) else -np.inf
-        tolerance = 1e-12 if dtype == jnp.float64 else 1e-5
-        np.testing.assert_allclose(float(sums.log_iw_sum[lane]), expected, rtol=tolerance)
-        expected2 = np.logaddexp.reduce(2 * log_iw) if len(log_iw) else -np.inf
-        np.testing.assert_allclose(float(sums.log_iw_sum2[lane]), expected2, rtol=tolerance)
-    # the per-step fields are left alone
-    np.testing.assert_array_equal(np.asarray(sums.all_t), np.asarray(before.all_t))
-    np.testing.assert_array_equal(np.asarray(sums.open_f), np.asarray(before.open_f))
+def test_events_give_the_sums_of_adding_each_tour_at_every_lane(dtype):
+    """Adding the gathered lanes' tours equals adding, at every lane and every step, the tour
+    that ended there or zero (the dense update; to the last bits, which XLA's fused
+    multiply-adds may round otherwise than NumPy); padded slots change nothing."""
+    rng = np.random.default_rng(1)
+    sums = init_lane_sums(LANES, SIZE, dtype, jnp.zeros(LANES, bool))
+    sums = sums._replace(sum_t=jnp.full(LANES, 2.5, dtype), num_tours=jnp.full(LANES, 7, jnp.int32))
+    dense = jax.tree.map(np.asarray, sums)
+    step = jax.jit(add_events)
+    for _ in range(12):
+        index, lanes, ended, drawn, t, f, w, args = _events(rng, dtype)
+        sums = step(sums, jnp.asarray(index, jnp.int32), *args)
+        e = np.zeros(LANES, bool)
+        e[lanes] = ended
+        d = np.zeros(LANES, bool)
+        d[lanes] = drawn
+        tt = np.zeros(LANES, dtype)
+        tt[lanes] = t
+        ff = np.zeros((LANES, SIZE), dtype)
+        ff[lanes] = f
+        ww = np.full(LANES, -np.inf, dtype)
+        ww[lanes] = w
+        tt, ff = np.where(e, tt, 0).astype(dtype), np.where(e[:, None], ff, 0).astype(dtype)
+        ww = np.where(d, ww, -np.inf).astype(dtype)
+        dense = dense._replace(
+            sum_f=dense.sum_f + ff, sum_f2=dense.sum_f2 + ff * ff, sum_ft=dense.sum_ft + ff * tt[:, None],
+            sum_t=dense.sum_t + tt, sum_t2=dense.sum_t2 + tt * tt, num_tours=dense.num_tours + e,
+            max_tour=np.maximum(dense.max_tour, tt), num_iw=dense.num_iw + d,
+            log_iw_sum=np.logaddexp(dense.log_iw_sum, ww), log_iw_sum2=np.logaddexp(dense.log_iw_sum2, 2 * ww),
+        )  # fmt: skip
+    tolerance = 1e-14 if dtype == jnp.float64 else 1e-6
+    for name in ("sum_f", "sum_f2", "sum_ft", "sum_t", "sum_t2", "max_tour", "log_iw_sum", "log_iw_sum2"):
+        np.testing.assert_allclose(np.asarray(getattr(sums, name)), getattr(dense, name), rtol=tolerance, err_msg=name)
+    for name in ("num_tours", "num_iw"):
+        np.testing.assert_array_equal(np.asarray(getattr(sums, name)), getattr(dense, name), err_msg=name)
+    assert np.all(np.asarray(sums.max_tour) < 1e6)  # the padding never landed
 
 
-def test_slots_past_a_lanes_count_are_ignored():
-    """Negative control: counting the stale slots of an earlier chunk changes the sums."""
-    records, tours, _ = recorded(2)
-    before = init_lane_sums(LANES, SIZE, jnp.float64, jnp.zeros(LANES, bool))
-    sums = add_recorded_tours(before, records)
-    assert np.all(np.asarray(sums.max_tour) < 1e6)
-    full = records._replace(count=jnp.full(LANES, DEPTH, jnp.int32))
-    wrong = add_recorded_tours(before, full)
-    short = np.asarray(records.count) < DEPTH
-    assert short.any()
-    assert np.all(np.asarray(wrong.max_tour)[short] == 1e6)
-    assert not np.allclose(np.asarray(wrong.sum_f)[short], np.asarray(sums.sum_f)[short])
+def test_padding_at_a_lane_would_change_the_sums():
+    """Negative control: the padded slots hold poison; pointing them at a real lane changes its sums."""
+    rng = np.random.default_rng(2)
+    sums = init_lane_sums(LANES, SIZE, jnp.float64, jnp.zeros(LANES, bool))
+    index, *_, args = _events(rng, jnp.float64)
+    right = add_events(sums, jnp.asarray(index, jnp.int32), *args)
+    wrong = add_events(sums, jnp.asarray(np.where(index == LANES, 0, index), jnp.int32), *args)
+    assert float(wrong.max_tour[0]) == 1e6 != float(right.max_tour[0])
 
 
-def test_samplers_without_tours_keep_zero_tour_sums():
-    before = init_lane_sums(LANES, SIZE, jnp.float64, jnp.zeros(LANES, bool))
-    sums = add_recorded_tours(before, init_records(LANES, SIZE, 0, jnp.float64))
-    for name in ("sum_f", "sum_t", "num_tours", "num_iw"):
-        assert not np.any(np.asarray(getattr(sums, name)))
+def test_float32_totals_keep_their_precision():
+    """A million chunks of one small term each, added to a large float32 total: compensated
+    summation keeps the total exact to float32's last bits, plain float32 addition loses it."""
+    sums = init_lane_sums(1, 1, jnp.float32, jnp.zeros(1, bool))
+    histogram = init_histogram(jnp.float32)
+    totals = init_totals(sums, histogram)
+    totals = totals._replace(sums=totals.sums._replace(all_t=jnp.full(1, 1e4, jnp.float32)))
+    chunk = sums._replace(all_t=jnp.full(1, 1e-3, jnp.float32))
+    run = jax.jit(lambda totals: jax.lax.fori_loop(0, 10**6, lambda _, t: fold(t, chunk, histogram), totals))
+    compensated = host_totals(run(totals))[0].all_t[0]
+    exact = 1e4 + 10**6 * float(np.float32(1e-3))
+    assert abs(compensated - exact) < 1e-6 * exact
+    plain = run(totals._replace(error=None)).sums.all_t[0]  # negative control: no compensation
+    assert abs(float(plain) - exact) > 100 * abs(compensated - exact)
+
+
+def test_fold_takes_the_lanes_state_from_the_chunk():
+    sums = init_lane_sums(LANES, SIZE, jnp.float64, jnp.zeros(LANES, bool))
+    totals = init_totals(sums, init_histogram(jnp.float64))
+    chunk = sums._replace(open_steps=jnp.arange(LANES, dtype=jnp.int32), sum_t=jnp.ones(LANES))
+    folded = fold(fold(totals, chunk, init_histogram(jnp.float64)), chunk, init_histogram(jnp.float64))
+    host, _ = host_totals(folded)
+    assert isinstance(host, LaneSums)
+    np.testing.assert_array_equal(host.open_steps, np.arange(LANES))  # state: the latest, not summed
+    np.testing.assert_array_equal(host.sum_t, 2.0)  # sums: added

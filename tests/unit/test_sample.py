@@ -107,7 +107,7 @@ def test_draw_rows_shares_one_program_between_runs_of_other_lengths_and_changes_
         short, long = run(40, draw_rows=128), run(120, draw_rows=128)
     finally:
         jax.monitoring.unregister_event_duration_listener(listen)
-    assert traced.count("_advance") == 1  # the 40-step and the 120-step runs share the loop program
+    assert traced.count("advance") == 1  # the 40-step and the 120-step runs share the loop program
     assert short.draws.shape == plain.draws.shape == (40, 16, 2) and long.draws.shape == (120, 16, 2)
     np.testing.assert_array_equal(short.draws, plain.draws)
     np.testing.assert_array_equal(short.estimate("x").value, plain.estimate("x").value)

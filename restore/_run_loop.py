@@ -1,0 +1,438 @@
+"""The compiled programs of a run: chunks of steps over every lane, and the finishing of open tours.
+
+Everything a run keeps lives in a `RunCarry` of fixed shape on the device for the whole
+run: the lanes' states, the current chunk's per-lane sums and tour histogram, the run's
+totals, the tail buffers and the stored draws. A chunk (`advance`) steps every lane, adds
+each step to the chunk's sums and histogram and offers the tours that end to the tail
+buffers; at its end the chunk's sums join the totals and restart, and the host learns a
+`ChunkReport` of a few scalars. Nothing per lane leaves the device until the run ends.
+
+After the step budget, the tours still open are run to their end (`finish`): dropping
+them would bias the estimates towards short tours (long tours are the ones likely to
+straddle the end); finishing them makes the number of tours of each lane a stopping
+time, so by Wald's identity the pooled sums `sum F` and `sum T` have the right ratio of
+expectations. Nearly every lane has an open tour at the budget, but most end within a few
+steps and a few last for hundreds, so stepping all lanes until the last tour ends would
+mostly step lanes that are done. `finish` steps a narrower batch of `width` slots instead,
+each holding one open lane: a lane whose tour ends is written back and its slot takes
+the next open lane. Lane `i`'s `j`-th finishing step draws with the key of global step
+`N + j` (`N` the budget), as a step of every lane would, so its path is the same whatever
+the width.
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array
+
+from ._accumulators import (
+    LaneSums,
+    Totals,
+    add_events,
+    counted_ends,
+    fold,
+    init_histogram,
+    init_lane_sums,
+    init_totals,
+    open_tour_totals,
+    restart_sums,
+    update_histogram,
+    update_step_sums,
+)
+from ._compile import jit
+from ._observables import Observables
+from ._sharding import LaneSharding, map_devices, map_lanes
+from ._sparse_draws import batch_lanes, draw_slots
+from ._tails import TourTailBuffers, init_tails, offer_tours
+from ._threefry import unrolled_keys
+
+
+class RunCarry(NamedTuple):
+    """Everything a run keeps, on the device, in arrays of fixed shape for the whole run.
+
+    `sums` and `histogram` are the current chunk's (added to `totals` and restarted at the
+    end of every chunk); `tails` the run's largest tours; `lane` each lane's index;
+    `step` the steps every lane has taken (the budget's, then the finishing's).
+    """
+
+    states: Any
+    sums: LaneSums
+    histogram: tuple[Array, Array]
+    totals: Totals
+    tails: TourTailBuffers | None
+    lane: Array
+    draws: Array
+    draw_weights: Array
+    step: Array
+
+
+class ChunkReport(NamedTuple):
+    """What the host learns after a chunk: a few scalars, whatever the number of lanes.
+
+    Attributes:
+        steps: steps per lane the chunk ran (finishing: the most steps any lane took).
+        time: simulated (continuous) time of all lanes in the chunk.
+        accepted: accepted local moves (or MH large steps) in the chunk.
+        regenerations: kills followed by a regeneration in the chunk.
+        open_tours: lanes still in a counted tour at the end of the chunk.
+    """
+
+    steps: Array
+    time: Array
+    accepted: Array
+    regenerations: Array
+    open_tours: Array
+
+
+class CarryShape(NamedTuple):
+    """The sizes of a run's carry beyond its states (hashable: a static argument)."""
+
+    num_lanes: int
+    size: int
+    tail_rows: int  # rows of the tail buffer (of each device's); 0 without tours
+    capacity: int
+    given_positions: bool
+    num_devices: int  # 0: not sharded
+
+
+def active(sums: LaneSums) -> Array:
+    """Lanes inside a tour that counts (an open tour after a regeneration)."""
+    return (sums.open_steps > 0) & ~sums.skip_first
+
+
+def start_carry(states, shape: CarryShape) -> RunCarry:
+    """The carry at the start of a run: zero sums and totals, empty tail buffers and draws, step 0."""
+    dtype, (num_lanes, size, tail_rows, capacity, given, devices) = states.logdensity.dtype, shape
+    per_device = lambda tree: tree if not devices else jax.tree.map(lambda h: jnp.broadcast_to(h, (devices,) + h.shape), tree)
+    histogram = per_device(init_histogram(dtype))
+    sums = init_lane_sums(num_lanes, size, dtype, jnp.full((num_lanes,), given))
+    return RunCarry(
+        states=states,
+        sums=sums,
+        histogram=histogram,
+        totals=init_totals(sums, histogram),
+        tails=per_device(init_tails(tail_rows, size, dtype)) if tail_rows else None,
+        lane=jnp.arange(num_lanes, dtype=jnp.int32),
+        draws=jnp.zeros((capacity, num_lanes, states.position.shape[-1]), dtype),
+        draw_weights=jnp.zeros((capacity, num_lanes), dtype),
+        step=jnp.zeros((), jnp.int32),
+    )
+
+
+def carry_shardings(carry: RunCarry, sharding: LaneSharding) -> RunCarry:
+    """Lane axes split over the mesh; the partial histograms and tail buffers one per device; the step counter replicated."""
+    lanes = lambda tree: jax.tree.map(lambda _: sharding.lanes, tree)
+    return RunCarry(
+        states=lanes(carry.states),
+        sums=lanes(carry.sums),
+        histogram=lanes(carry.histogram),  # one row per device
+        totals=lanes(carry.totals),
+        tails=lanes(carry.tails),
+        lane=sharding.lanes,
+        draws=sharding.lanes_second,
+        draw_weights=sharding.lanes_second,
+        step=sharding.replicated,
+    )
+
+
+class _Tallied(NamedTuple):
+    """One step of some lanes, added to their sums, with what the histogram and tail buffers need."""
+
+    states: Any
+    sums: LaneSums
+    observed: Array
+    weight: Array
+    histogram: Any
+    tails: Any
+
+
+def _tally(
+    states, sums: LaneSums, histogram, tails, lane: Array, new_states, info, values: Array, rao_blackwell: bool, batch: int | None, on: Array | None = None
+) -> _Tallied:
+    """The lanes' states and sums after one step (`on`: the lanes that step; the others keep
+    theirs), with the tours that ended and the starts drawn added to the sums, the histogram
+    and the tail buffers (`lane`: the lanes' indices in the run).
+
+    The lanes with such an event (a tenth or fewer in a typical step) are gathered `batch`
+    at a time (`_sparse_draws.batch_lanes`, in lane order), so that only their rows of the
+    tour sums are read and written; `batch=None` for samplers without tours.
+    """
+    weight = info.expected_holding_time if rao_blackwell else info.holding_time
+    if on is not None:
+        weight = jnp.where(on, weight, 0.0)
+    integrals, durations = open_tour_totals(sums, values, weight)
+    ended, drawn = counted_ends(sums, info), info.start_drawn
+    if on is not None:
+        ended, drawn = ended & on, drawn & on
+    updated = update_step_sums(sums, values, weight, info, integrals, durations)
+    if on is not None:
+        keep = lambda new, old: jnp.where(on.reshape((-1,) + (1,) * (new.ndim - 1)), new, old)
+        updated, new_states = jax.tree.map(keep, updated, sums), jax.tree.map(keep, new_states, states)
+    if batch is not None:
+        updated, histogram, tails = _events(updated, histogram, tails, lane, ended, drawn, integrals, durations, info.log_importance_weight, batch)
+    return _Tallied(new_states, updated, info.position, weight, histogram, tails)
+
+
+def _events(sums: LaneSums, histogram, tails, lane, ended, drawn, integrals, durations, log_importance_weight, batch: int):
+    """The sums, histogram and tail buffers after the tours that `ended` and the starts `drawn`, `batch` lanes at a time."""
+    event = ended | drawn
+    num_lanes = event.shape[0]
+    rank = jnp.cumsum(event, dtype=jnp.int32) - 1
+    total = rank[-1] + 1
+
+    def body(loop):
+        sums, histogram, tails, start = loop
+        index = batch_lanes(event, rank, start, batch)
+        safe = jnp.minimum(index, num_lanes - 1)
+        valid = index < num_lanes
+        e, d = ended[safe] & valid, drawn[safe] & valid
+        f, t, w = integrals[safe], durations[safe], log_importance_weight[safe]
+        sums = add_events(sums, index, e, d, f, t, w)
+        histogram = update_histogram(histogram, t, e)
+        tails = offer_tours(tails, lane[safe], t, f, e, w, d, batch=batch)
+        return sums, histogram, tails, start + batch
+
+    return jax.lax.while_loop(lambda loop: loop[3] < total, body, (sums, histogram, tails, jnp.zeros((), jnp.int32)))[:3]
+
+
+def event_batch(sampler, num_lanes: int) -> int | None:
+    """Lanes gathered per batch of tour ends and starts (`_tally`), or `None` for a sampler without tours."""
+    if not sampler.has_tours:
+        return None
+    return draw_slots(num_lanes, sampler.tour_end_fraction()) or num_lanes
+
+
+def _one_device(tree):
+    return jax.tree.map(lambda a: a[0], tree)
+
+
+def _per_device(tree):
+    return jax.tree.map(lambda a: a[None], tree)
+
+
+def _end_chunk(carry: RunCarry, steps: Array) -> tuple[RunCarry, ChunkReport]:
+    """The chunk's report, and the carry with the chunk's sums and histogram added to the totals and restarted."""
+    s = carry.sums
+    report = ChunkReport(
+        steps, jnp.sum(s.all_t), jnp.sum(s.num_accepted), jnp.sum(s.num_regenerations), jnp.sum(active(s), dtype=jnp.int32)
+    )
+    totals = fold(carry.totals, s, carry.histogram)
+    return carry._replace(sums=restart_sums(s), histogram=jax.tree.map(jnp.zeros_like, carry.histogram), totals=totals), report
+
+
+def _observed_step(sampler_and_observe, key, state):
+    """One lane's step, with the observables at the state its weight refers to."""
+    sampler, observe = sampler_and_observe
+    new_state, info = sampler.step(key, state)
+    return new_state, info, observe(info.position)
+
+
+@jit(filtered=True)
+def advance(
+    sampler,
+    observe: Observables,
+    carry: RunCarry,
+    lane_keys: Array,
+    length: Array,
+    finishing: Array,
+    thin: Array,
+    rao_blackwell: bool,
+    sharding: LaneSharding | None = None,
+) -> tuple[RunCarry, ChunkReport]:
+    """Run every lane for `length` steps (a chunk of the step budget), or (`finishing`) until
+    each lane's open tour ends, at most `length` steps.
+
+    Every step updates the chunk's per-lane sums and histogram, offers the tours that
+    ended to the tail buffers and stores the state every `thin` steps; at the end the
+    chunk's sums join the run's totals (`_end_chunk`). One compiled program serves every
+    chunk length, thinning and both modes (all are traced), so runs of other lengths reuse
+    it. When finishing, no tour starts: a lane whose tour has ended stops (its state and
+    sums are frozen), and every lane is stepped until the last open tour ends (`finish`
+    steps a narrower batch instead, in a program of its own).
+
+    With a `sharding` (static; `None` on one device) the lanes are split over a mesh:
+    the per-lane work (the sampler's step and the observables), the histogram and the
+    tail buffers run under `shard_map`, each device on its own lanes with its own partial
+    histogram and buffers, and the carry's layout is pinned inside the loop. The devices
+    do not talk to each other within a chunk (when finishing, they agree at every step
+    whether any lane is still in a tour); the chunk's report is a sum over them.
+    """
+
+    def cond(loop):
+        carry, done = loop
+        if sharding is not None:  # no cross-device reduction per step unless finishing
+            return (done < length) & jax.lax.cond(finishing, lambda: jnp.any(active(carry.sums)), lambda: jnp.asarray(True))
+        return (done < length) & (~finishing | jnp.any(active(carry.sums)))
+
+    def body(loop):
+        carry, done = loop
+        keys = jax.vmap(lambda k: jax.random.fold_in(k, carry.step))(lane_keys)
+        if sharding is None:
+            new_states, info = sampler.step_lanes(keys, carry.states)
+            values = jax.vmap(observe)(info.position)
+        else:
+            new_states, info, values = map_lanes(_observed_step, sharding, (sampler, observe), keys, carry.states)
+        on = ~finishing | active(carry.sums)
+        if sharding is None:
+            t = _tally(carry.states, carry.sums, carry.histogram, carry.tails, carry.lane, new_states, info, values, rao_blackwell, batch, on)
+        else:  # each device its own lanes, with one partial histogram and one set of buffers per device
+
+            def local(states, sums, histogram, tails, lane, new_states, info, values, on):
+                t = _tally(states, sums, _one_device(histogram), _one_device(tails), lane, new_states, info, values, rao_blackwell, batch, on)
+                return t._replace(histogram=_per_device(t.histogram), tails=_per_device(t.tails))
+
+            t = map_devices(local, sharding, carry.states, carry.sums, carry.histogram, carry.tails, carry.lane, new_states, info, values, on)
+        histogram, tails = t.histogram, t.tails
+        draws, draw_weights = carry.draws, carry.draw_weights
+        if draws.shape[0] > 0:
+            slot = carry.step // thin
+            draws, draw_weights = jax.lax.cond(
+                ~finishing & (carry.step % thin == 0) & (slot < draws.shape[0]),
+                lambda d, w: (d.at[slot].set(t.observed), w.at[slot].set(t.weight)),
+                lambda d, w: (d, w),
+                draws,
+                draw_weights,
+            )
+        new = carry._replace(
+            states=t.states, sums=t.sums, histogram=histogram, tails=tails, draws=draws, draw_weights=draw_weights, step=carry.step + 1
+        )
+        if sharding is not None:
+            new = jax.lax.with_sharding_constraint(new, carry_shardings(new, sharding))
+        return new, done + 1
+
+    lane_keys = unrolled_keys(lane_keys)  # the same bits, a faster program on the CPU
+    batch = event_batch(sampler, carry.lane.shape[0] // (1 if sharding is None else sharding.num_devices))
+    if sharding is not None:
+        carry = jax.lax.with_sharding_constraint(carry, carry_shardings(carry, sharding))
+    carry, done = jax.lax.while_loop(cond, body, (carry, jnp.zeros((), jnp.int32)))
+    carry, report = _end_chunk(carry, done)
+    if sharding is not None:
+        carry = jax.lax.with_sharding_constraint(carry, carry_shardings(carry, sharding))
+    return carry, report
+
+
+#: Runs of at least this many lanes (per device) finish their open tours `NARROW_FACTOR` times
+#: narrower (`finish`); smaller runs finish them at full width (`advance`), which costs no
+#: second compilation of the step.
+NARROW_FINISH_LANES = 4096
+NARROW_FACTOR = 8
+
+
+def finishing_width(num_lanes: int) -> int | None:
+    """Slots of the narrow finishing batch, or `None` to finish at full width."""
+    return max(1, num_lanes // NARROW_FACTOR) if num_lanes >= NARROW_FINISH_LANES else None
+
+
+def _finish_lanes(sampler, observe, states, sums, histogram, tails, lane, lane_keys, step, limit, rao_blackwell: bool, width: int):
+    """Run each lane's open tour to its end (at most `limit` steps), `width` lanes at a time (see the module docstring).
+
+    Returns the lanes' states and sums, the histogram and tails, and the most steps any lane took.
+    """
+    num_lanes = lane.shape[0]
+    batch = event_batch(sampler, width)
+    open_ = active(sums)
+    queue = batch_lanes(open_, jnp.cumsum(open_, dtype=jnp.int32) - 1, jnp.zeros((), jnp.int32), num_lanes)  # open lanes in order
+    total = jnp.sum(open_, dtype=jnp.int32)
+    take = lambda tree, index: jax.tree.map(lambda a: a[index], tree)
+    slots = jnp.arange(width, dtype=jnp.int32)
+    first = jnp.minimum(queue[jnp.minimum(slots, num_lanes - 1)], num_lanes - 1)
+
+    class Loop(NamedTuple):
+        states: Any
+        sums: LaneSums
+        histogram: Any
+        tails: Any
+        slot_lane: Array  # the lane each slot holds
+        slot_states: Any
+        slot_sums: LaneSums
+        slot_steps: Array  # finishing steps the slot's lane has taken
+        live: Array  # the slot holds an open lane
+        next: Array  # queue position of the next lane to take
+        most: Array  # the most finishing steps of any lane so far
+
+    def cond(loop: Loop) -> Array:
+        return jnp.any(loop.live)
+
+    def body(loop: Loop) -> Loop:
+        keys = jax.vmap(lambda k, j: jax.random.fold_in(k, step + j))(lane_keys[loop.slot_lane], loop.slot_steps)
+        new_states, info = sampler.step_lanes(keys, loop.slot_states)
+        values = jax.vmap(observe)(info.position)
+        t = _tally(loop.slot_states, loop.slot_sums, loop.histogram, loop.tails, loop.slot_lane, new_states, info, values, rao_blackwell, batch, loop.live)
+        histogram, tails = t.histogram, t.tails
+        ended = counted_ends(loop.slot_sums, info) & loop.live
+        taken = loop.slot_steps + loop.live.astype(jnp.int32)
+        done = loop.live & (ended | (taken >= limit))  # the tour ended, or the lane ran out of steps
+        # the lanes that are done go back to their places...
+        home = jnp.where(done, loop.slot_lane, num_lanes)  # out of range: not written
+        put = lambda full, part: full.at[home].set(part, mode="drop")
+        states, sums = jax.tree.map(put, loop.states, t.states), jax.tree.map(put, loop.sums, t.sums)
+        # ...and their slots take the next open lanes of the queue
+        position = loop.next + jnp.cumsum(done, dtype=jnp.int32) - 1
+        refill = done & (position < total)
+        new_lane = jnp.where(refill, queue[jnp.minimum(position, num_lanes - 1)], loop.slot_lane)
+        fresh = lambda full, part: jnp.where(refill.reshape((-1,) + (1,) * (part.ndim - 1)), full[new_lane], part)
+        return Loop(
+            states, sums, histogram, tails, new_lane,
+            jax.tree.map(fresh, states, t.states), jax.tree.map(fresh, sums, t.sums),
+            jnp.where(refill, 0, taken), (loop.live & ~done) | refill,
+            loop.next + jnp.sum(done, dtype=jnp.int32), jnp.maximum(loop.most, jnp.max(taken)),
+        )  # fmt: skip
+
+    zero = jnp.zeros_like(total)  # varies with the lanes, as the loop's results do (under `shard_map`)
+    start = Loop(
+        states, sums, histogram, tails, first, take(states, first), take(sums, first), jnp.zeros((width,), jnp.int32) + zero,
+        slots < total, jnp.minimum(total, width), zero,
+    )  # fmt: skip
+    end = jax.lax.while_loop(cond, body, start)
+    return end.states, end.sums, end.histogram, end.tails, end.most
+
+
+@jit(filtered=True)
+def finish(
+    sampler,
+    observe: Observables,
+    carry: RunCarry,
+    lane_keys: Array,
+    limit: Array,
+    rao_blackwell: bool,
+    sharding: LaneSharding | None,
+    width: int,
+) -> tuple[RunCarry, ChunkReport]:
+    """Run every open tour to its end, at most `limit` steps each, `width` lanes at a time (see the module docstring).
+
+    No tour starts: a lane whose tour ends stops there. With a `sharding`, each device
+    finishes its own lanes (`width` slots each), without talking to the others.
+    """
+    lane_keys = unrolled_keys(lane_keys)
+    args = (carry.states, carry.sums, carry.histogram, carry.tails, carry.lane, lane_keys)
+    if sharding is None:
+        states, sums, histogram, tails, most = _finish_lanes(sampler, observe, *args, carry.step, limit, rao_blackwell, width)
+    else:
+
+        def local(sampler_and_observe, states, sums, histogram, tails, lane, lane_keys, step, limit):
+            sampler, observe = sampler_and_observe
+            h, b = _one_device(histogram), _one_device(tails)
+            out = _finish_lanes(sampler, observe, states, sums, h, b, lane, lane_keys, step, limit, rao_blackwell, width)
+            states, sums, h, b, most = out
+            return states, sums, _per_device(h), _per_device(b), most[None]
+
+        arrays, static = eqx.partition((sampler, observe), eqx.is_array)
+        lanes, replicated = sharding.lanes.spec, jax.sharding.PartitionSpec()
+        mapped = jax.shard_map(
+            lambda arrays, *rest: local(eqx.combine(arrays, static), *rest),
+            mesh=sharding.mesh,
+            in_specs=(replicated,) + (lanes,) * 6 + (replicated, replicated),
+            out_specs=(lanes,) * 5,
+        )
+        states, sums, histogram, tails, most = mapped(arrays, *args, carry.step, limit)
+        most = jnp.max(most)
+    carry = carry._replace(states=states, sums=sums, histogram=histogram, tails=tails, step=carry.step + most)
+    carry, report = _end_chunk(carry, most)
+    if sharding is not None:
+        carry = jax.lax.with_sharding_constraint(carry, carry_shardings(carry, sharding))
+    return carry, report
+
