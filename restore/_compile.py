@@ -103,3 +103,57 @@ def jit(fun: Callable | None = None, *, filtered: bool = False, once: bool = Fal
 
 
 _BUILD_LOCK = threading.Lock()
+
+
+def jit_chunk(fun: Callable) -> Callable:
+    """`fun(chunk, carry)` compiled as a loop (`compiler_options()`), returning at once (asynchronous
+    dispatch), with the carry donated: its buffers become the result's.
+
+    `chunk` may hold anything (a sampler, static settings): its arrays are traced and
+    everything else is static, as with `eqx.filter_jit`, and none of it is donated. `carry`
+    is a pytree of arrays. (`eqx.filter_jit` waits for every call to end, to report
+    runtime errors, so the host could not dispatch a chunk before the last one ended.)
+    `.lower(chunk, carry)` lowers it (to compile it ahead).
+    """
+    built: list[Callable] = []
+
+    def inner(dynamic, static, carry):
+        return fun(_join(dynamic, static), carry)
+
+    inner.__name__ = inner.__qualname__ = fun.__name__  # the program's name in JAX's logs and caches
+
+    def build():
+        with _BUILD_LOCK:
+            if not built:
+                built.append(jax.jit(inner, static_argnums=1, donate_argnums=2, compiler_options=compiler_options()))
+        return built[0]
+
+    @functools.wraps(fun)
+    def call(chunk, carry):
+        return (built[0] if built else build())(*_split(chunk), carry)
+
+    call.lower = lambda chunk, carry: build().lower(*_split(chunk), carry)  # type: ignore[attr-defined]
+    return call
+
+
+def _split(tree) -> tuple[list, tuple]:
+    """`tree`'s arrays (in leaf order, `None` elsewhere) and its hashable rest (structure and other leaves)."""
+    leaves, structure = jax.tree.flatten(tree)
+    arrays = [leaf if eqx.is_array(leaf) else None for leaf in leaves]
+    rest = tuple(_DYNAMIC if eqx.is_array(leaf) else leaf for leaf in leaves)
+    return arrays, (structure, rest)
+
+
+def _join(arrays: list, static: tuple):
+    structure, rest = static
+    return jax.tree.unflatten(structure, [a if r is _DYNAMIC else r for a, r in zip(arrays, rest, strict=True)])
+
+
+class _Dynamic:
+    """Marks where an array goes back in `_join` (hashable, and equal only to itself)."""
+
+    def __repr__(self) -> str:
+        return "<array>"
+
+
+_DYNAMIC = _Dynamic()

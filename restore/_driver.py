@@ -21,6 +21,8 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import math
+import signal
+import threading
 import time
 from collections.abc import Callable, Iterator
 
@@ -104,6 +106,22 @@ class Meter:
             self._bar.update(self._task, completed=min(completed, self.total), rate=rate)
 
 
+@contextlib.contextmanager
+def _interrupt_deferred() -> Iterator[None]:
+    """Ctrl-C inside waits until the block has ended (in the main thread; elsewhere it cannot come)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught: list = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if caught:
+        raise KeyboardInterrupt
+
+
 def drive(
     advance: Callable[[int], int],
     *,
@@ -162,15 +180,26 @@ def drive(
     waiting: list[Callable[[], int]] = []  # a dispatched chunk not yet waited for (pipelined advances)
     dispatched = done
 
-    def finish_chunk(steps: int) -> None:
+    def finish_chunk(steps: int, may_save: bool = True) -> None:
         nonlocal done, mark
         done += steps
         meter.update(*report(done, elapsed()))
         if on_chunk is not None:
             on_chunk()
-        if done >= mark or (save_every_seconds is not None and time.perf_counter() - last_save >= save_every_seconds):
+        if may_save and save_due():
             write()
             mark = next_mark(done)
+
+    def save_due() -> bool:
+        return save is not None and (
+            done >= mark or (save_every_seconds is not None and time.perf_counter() - last_save >= save_every_seconds)
+        )
+
+    def wait_for_chunk(may_save: bool = True) -> None:
+        """Wait for the chunk in flight and commit it (it stays in flight if the wait is interrupted)."""
+        steps = waiting[0]()
+        waiting.pop()
+        finish_chunk(steps, may_save)
 
     with meter.shown():
         try:
@@ -185,22 +214,32 @@ def drive(
                         per_step = max((time.perf_counter() - start) / (done - first), 1e-9)
                         slice_ = min(2.0, max(budget.seconds / 20, 0.05))
                         n = min(n, max(1, math.ceil(min(budget.seconds - elapsed(), slice_) / per_step)))
-                outcome = advance(n)
+                if waiting and (save_due() or dispatched >= mark):  # save the chunk in flight before the next one takes its buffers
+                    wait_for_chunk()
+                with _interrupt_deferred():  # a dispatch is not cut in half
+                    outcome = advance(n)
                 if callable(outcome):
                     dispatched += n
                     if budget.seconds is None:  # chunk sizes are known ahead: keep one chunk in flight
                         if waiting:
-                            finish_chunk(waiting.pop()())
+                            wait_for_chunk(may_save=False)  # its buffers went to the chunk just dispatched
                         waiting.append(outcome)
                         continue
-                    outcome = outcome()
-                    dispatched += outcome - n
-                else:
-                    dispatched += outcome
+                    waiting.append(outcome)
+                    before = done
+                    wait_for_chunk()
+                    dispatched += done - before - n
+                    continue
+                dispatched += outcome
                 finish_chunk(outcome)
             while waiting:
-                finish_chunk(waiting.pop()())
+                wait_for_chunk()
         except KeyboardInterrupt:
             interrupted = True
+            while waiting:  # the chunk in flight holds the run (the committed one gave it its buffers): wait for it
+                try:
+                    wait_for_chunk(may_save=False)
+                except KeyboardInterrupt:
+                    continue
     write()
     return Outcome(done, interrupted, elapsed())

@@ -42,10 +42,8 @@ from ._sparse_draws import batch_lanes
 BINS_PER_OCTAVE = 16
 #: Histogram bins below each column's largest score (scores further down share the last).
 NUM_BINS = 1024
-#: A compaction histograms every this many-th row (the thresholds it proposes are checked exactly).
-HISTOGRAM_STRIDE = 8
-#: Bisection steps that refine how many scores each column keeps (after halving found the scale).
-REFINEMENTS = 5
+#: A compaction histograms a sample of about this many rows (the thresholds it proposes are checked exactly).
+HISTOGRAM_ROWS = 8192
 
 #: How a buffer scores its rows, one score per number: the last `Scoring` numbers of a row
 #: are logarithms already (log importance weights) and are their own scores; the others
@@ -105,10 +103,10 @@ def init_exceedances(capacity: int, width: int, dtype) -> Exceedances:
 def compact(buffer: Exceedances, scoring: Scoring) -> Exceedances:
     """The buffer with at most half its rows kept: the thresholds raised, the rows below all of them dropped.
 
-    Each column's thresholds are read off a log-scale histogram of its scores (every
-    `HISTOGRAM_STRIDE`-th row): the column keeps about its `r` largest scores, with `r`
-    halved from `B / 2` until the rows kept (an exact count) fit in half the buffer, then
-    raised again by bisection as far as they still fit. The kept rows stay in their order.
+    Each column's thresholds are read off a log-scale histogram of its scores (of every
+    row, or an even sample of `HISTOGRAM_ROWS`): the column keeps about its `r` largest scores, with `r`
+    lowered by quarters from `B / 2` until the rows kept (an exact count) fit in half the
+    buffer. The kept rows stay in their order.
     """
     capacity = buffer.capacity
     half = capacity // 2
@@ -117,12 +115,13 @@ def compact(buffer: Exceedances, scoring: Scoring) -> Exceedances:
     scores = jnp.where(used[:, None], scores, -jnp.inf)
     top = jnp.max(scores, axis=0)  # (C,)
     scale = BINS_PER_OCTAVE / math.log(2.0)
-    sample = scores[::HISTOGRAM_STRIDE]
+    stride = max(1, capacity // HISTOGRAM_ROWS)
+    sample = scores[::stride]
     bins = jnp.clip(jnp.floor((top - sample) * scale), 0, NUM_BINS - 1)
     bins = jnp.where(jnp.isfinite(sample), bins, NUM_BINS).astype(jnp.int32)  # unused rows: out of range
     columns = jnp.arange(scores.shape[1])[None, :]
     histogram = jnp.zeros((scores.shape[1], NUM_BINS), jnp.int32).at[columns, bins].add(1, mode="drop")
-    larger = jnp.cumsum(histogram, axis=1) * HISTOGRAM_STRIDE  # (C, NUM_BINS): about how many scores are in bins <= b
+    larger = jnp.cumsum(histogram, axis=1) * stride  # (C, NUM_BINS): about how many scores are in bins <= b
 
     def thresholds(rank: Array) -> Array:
         """Per column, the lower edge of the last bin with about `rank` scores above it."""
@@ -134,15 +133,7 @@ def compact(buffer: Exceedances, scoring: Scoring) -> Exceedances:
         return jnp.sum(used & jnp.any(scores > thresholds(rank), axis=1), dtype=jnp.int32)
 
     half_rank = half + jnp.zeros_like(buffer.count)  # varies with the buffer, as the loops' results do (under `shard_map`)
-    rank = jax.lax.while_loop(lambda r: (kept(r) > half) & (r > 0), lambda r: r // 2, half_rank)
-
-    def refine(_, bounds):  # the most per column that still fits: bisect between rank and twice rank
-        low, high = bounds
-        middle = (low + high + 1) // 2
-        fits = kept(middle) <= half
-        return jnp.where(fits, middle, low), jnp.where(fits, high, middle - 1)
-
-    rank = jax.lax.fori_loop(0, REFINEMENTS, refine, (rank, jnp.minimum(2 * rank, half)))[0]
+    rank = jax.lax.while_loop(lambda r: (kept(r) > half) & (r > 0), lambda r: r * 3 // 4, half_rank)
     threshold = thresholds(rank)
     keep = used & jnp.any(scores > threshold, axis=1)
     index = batch_lanes(keep, jnp.cumsum(keep, dtype=jnp.int32) - 1, jnp.zeros((), jnp.int32), capacity)
@@ -154,16 +145,8 @@ def compact(buffer: Exceedances, scoring: Scoring) -> Exceedances:
     )
 
 
-def insert(buffer: Exceedances, rows: Float[Array, "S P"], lanes: Int[Array, " S"], count: Int[Array, ""], scoring: Scoring) -> Exceedances:
-    """The buffer with the first `count` of `rows` appended (`S <= B / 2`; compacted first if they would not fit).
-
-    Rows at or below every threshold are appended too (offers are chosen against the
-    thresholds before a compaction may raise them); the next compaction drops them.
-    """
-    if rows.shape[0] > buffer.capacity // 2:
-        raise ValueError(f"at most {buffer.capacity // 2} rows per insertion, got {rows.shape[0]}")
-    full = buffer.count + rows.shape[0] > buffer.capacity
-    buffer = jax.lax.cond(full, lambda b: compact(b, scoring), lambda b: b, buffer)
+def _append(buffer: Exceedances, rows: Float[Array, "S P"], lanes: Int[Array, " S"], count: Int[Array, ""]) -> Exceedances:
+    """The buffer with the first `count` of `rows` appended (all `S` rows must fit after its used ones)."""
     start = (buffer.count, jnp.zeros((), jnp.int32))
     return buffer._replace(
         rows=jax.lax.dynamic_update_slice(buffer.rows, rows.astype(buffer.rows.dtype), start),
@@ -177,11 +160,18 @@ def offer(
 ) -> Exceedances:
     """The buffer after the `offered` rows of `N` with a score above its column's threshold, `batch` at a time.
 
-    The rows worth keeping are found from their running count (`_sparse_draws.batch_lanes`),
-    gathered `batch` at a time in row order and appended; a step with none costs a
-    comparison per score and row, and no batch at all.
+    The buffer is compacted first if the rows worth keeping might not fit (it holds at
+    least `2 (N + batch)` rows, so one compaction always makes room). Those rows are found
+    from their running count (`_sparse_draws.batch_lanes`), gathered `batch` at a time in
+    row order and appended; a step with none costs a comparison per score and row, and no
+    batch at all.
     """
-    candidate = offered & _above(rows, buffer.threshold, scoring)
+    if buffer.capacity < 2 * (rows.shape[0] + batch):
+        raise ValueError(f"a buffer of {buffer.capacity} rows is too small for offers of {rows.shape[0]} rows in batches of {batch}")
+    wanted = lambda buffer: offered & _above(rows, buffer.threshold, scoring)
+    full = buffer.count + jnp.sum(wanted(buffer), dtype=jnp.int32) + batch > buffer.capacity
+    buffer = jax.lax.cond(full, lambda b: compact(b, scoring), lambda b: b, buffer)
+    candidate = wanted(buffer)
     rank = jnp.cumsum(candidate, dtype=jnp.int32) - 1
     total = rank[-1] + 1
 
@@ -189,7 +179,7 @@ def offer(
         buffer, start = loop
         index = jnp.minimum(batch_lanes(candidate, rank, start, batch), candidate.shape[0] - 1)
         count = jnp.minimum(total - start, batch)
-        return insert(buffer, rows[index], lanes[index], count, scoring), start + batch
+        return _append(buffer, rows[index], lanes[index], count), start + batch
 
     return jax.lax.while_loop(lambda loop: loop[1] < total, body, (buffer, jnp.zeros((), jnp.int32)))[0]
 

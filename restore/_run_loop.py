@@ -43,7 +43,7 @@ from ._accumulators import (
     update_histogram,
     update_step_sums,
 )
-from ._compile import jit
+from ._compile import jit_chunk
 from ._observables import Observables
 from ._sharding import LaneSharding, map_devices, map_lanes
 from ._sparse_draws import batch_lanes, draw_slots
@@ -173,19 +173,20 @@ def _tally(
         keep = lambda new, old: jnp.where(on.reshape((-1,) + (1,) * (new.ndim - 1)), new, old)
         updated, new_states = jax.tree.map(keep, updated, sums), jax.tree.map(keep, new_states, states)
     if batch is not None:
-        updated, histogram, tails = _events(updated, histogram, tails, lane, ended, drawn, integrals, durations, info.log_importance_weight, batch)
+        updated, histogram = _events(updated, histogram, ended, drawn, integrals, durations, info.log_importance_weight, batch)
+        tails = offer_tours(tails, lane, durations, integrals, ended, info.log_importance_weight, drawn)
     return _Tallied(new_states, updated, info.position, weight, histogram, tails)
 
 
-def _events(sums: LaneSums, histogram, tails, lane, ended, drawn, integrals, durations, log_importance_weight, batch: int):
-    """The sums, histogram and tail buffers after the tours that `ended` and the starts `drawn`, `batch` lanes at a time."""
+def _events(sums: LaneSums, histogram, ended, drawn, integrals, durations, log_importance_weight, batch: int):
+    """The sums and histogram after the tours that `ended` and the starts `drawn`, `batch` lanes at a time."""
     event = ended | drawn
     num_lanes = event.shape[0]
     rank = jnp.cumsum(event, dtype=jnp.int32) - 1
     total = rank[-1] + 1
 
     def body(loop):
-        sums, histogram, tails, start = loop
+        sums, histogram, start = loop
         index = batch_lanes(event, rank, start, batch)
         safe = jnp.minimum(index, num_lanes - 1)
         valid = index < num_lanes
@@ -193,10 +194,9 @@ def _events(sums: LaneSums, histogram, tails, lane, ended, drawn, integrals, dur
         f, t, w = integrals[safe], durations[safe], log_importance_weight[safe]
         sums = add_events(sums, index, e, d, f, t, w)
         histogram = update_histogram(histogram, t, e)
-        tails = offer_tours(tails, lane[safe], t, f, e, w, d, batch=batch)
-        return sums, histogram, tails, start + batch
+        return sums, histogram, start + batch
 
-    return jax.lax.while_loop(lambda loop: loop[3] < total, body, (sums, histogram, tails, jnp.zeros((), jnp.int32)))[:3]
+    return jax.lax.while_loop(lambda loop: loop[2] < total, body, (sums, histogram, jnp.zeros((), jnp.int32)))[:2]
 
 
 def event_batch(sampler, num_lanes: int) -> int | None:
@@ -231,20 +231,37 @@ def _observed_step(sampler_and_observe, key, state):
     return new_state, info, observe(info.position)
 
 
-@jit(filtered=True)
-def advance(
-    sampler,
-    observe: Observables,
-    carry: RunCarry,
-    lane_keys: Array,
-    length: Array,
-    finishing: Array,
-    thin: Array,
-    rao_blackwell: bool,
-    sharding: LaneSharding | None = None,
-) -> tuple[RunCarry, ChunkReport]:
+class Chunk(NamedTuple):
+    """What a chunk's program takes besides the carry (none of it is donated).
+
+    Attributes:
+        sampler: the sampler.
+        observe: the observables.
+        lane_keys: each lane's key.
+        length: steps of the chunk (finishing: at most this many per lane).
+        finishing: finish the open tours (start none), else run the step budget.
+        thin: store the state every `thin` steps.
+        rao_blackwell: weigh by the expected holding times (static).
+        sharding: how the lanes are split over devices (static; `None` on one device).
+        width: slots of the narrow finishing batch (`finish` only; static).
+    """
+
+    sampler: Any
+    observe: Observables
+    lane_keys: Array
+    length: Array
+    finishing: Array
+    thin: Array
+    rao_blackwell: bool
+    sharding: LaneSharding | None = None
+    width: int = 0
+
+
+@jit_chunk
+def advance(chunk: Chunk, carry: RunCarry) -> tuple[RunCarry, ChunkReport]:
     """Run every lane for `length` steps (a chunk of the step budget), or (`finishing`) until
-    each lane's open tour ends, at most `length` steps.
+    each lane's open tour ends, at most `length` steps. The carry is donated: its buffers
+    become the new carry's (a run keeps no second copy of its sums, tails and draws).
 
     Every step updates the chunk's per-lane sums and histogram, offers the tours that
     ended to the tail buffers and stores the state every `thin` steps; at the end the
@@ -261,6 +278,7 @@ def advance(
     do not talk to each other within a chunk (when finishing, they agree at every step
     whether any lane is still in a tour); the chunk's report is a sum over them.
     """
+    sampler, observe, lane_keys, length, finishing, thin, rao_blackwell, sharding, _ = chunk
 
     def cond(loop):
         carry, done = loop
@@ -391,22 +409,15 @@ def _finish_lanes(sampler, observe, states, sums, histogram, tails, lane, lane_k
     return end.states, end.sums, end.histogram, end.tails, end.most
 
 
-@jit(filtered=True)
-def finish(
-    sampler,
-    observe: Observables,
-    carry: RunCarry,
-    lane_keys: Array,
-    limit: Array,
-    rao_blackwell: bool,
-    sharding: LaneSharding | None,
-    width: int,
-) -> tuple[RunCarry, ChunkReport]:
-    """Run every open tour to its end, at most `limit` steps each, `width` lanes at a time (see the module docstring).
+@jit_chunk
+def finish(chunk: Chunk, carry: RunCarry) -> tuple[RunCarry, ChunkReport]:
+    """Run every open tour to its end, at most `length` steps each, `width` lanes at a time (see the module docstring).
 
     No tour starts: a lane whose tour ends stops there. With a `sharding`, each device
-    finishes its own lanes (`width` slots each), without talking to the others.
+    finishes its own lanes (`width` slots each), without talking to the others. The carry
+    is donated.
     """
+    sampler, observe, lane_keys, limit, _, _, rao_blackwell, sharding, width = chunk
     lane_keys = unrolled_keys(lane_keys)
     args = (carry.states, carry.sums, carry.histogram, carry.tails, carry.lane, lane_keys)
     if sharding is None:

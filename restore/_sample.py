@@ -34,7 +34,7 @@ from ._driver import Budget, Meter, drive
 from ._observables import Observables
 from ._progress import console_note
 from ._result import SampleResult
-from ._run_loop import CarryShape, RunCarry, advance, carry_shardings, finish, finishing_width, start_carry
+from ._run_loop import CarryShape, Chunk, RunCarry, advance, carry_shardings, finish, finishing_width, start_carry
 from ._sampler import AbstractSampler, check_sampler
 from ._sharding import (
     Devices,
@@ -107,11 +107,17 @@ def _compile_run_ahead(like, init_keys, positions, lane_keys, observables, capac
         layout = jax.eval_shape(functools.partial(start_carry, shape=shape), states)
         carry = jax.tree.map(lambda a: np.zeros(a.shape, a.dtype), layout)  # NumPy: no program to compile
         scalars = (np.zeros((), np.int32), np.zeros((), bool), np.zeros((), np.int32))  # length, finishing, thin
-        return (like, observe, carry, lane_keys, *scalars, rao_blackwell, None)
+        return Chunk(like, observe, lane_keys, *scalars, rao_blackwell, None), carry
 
     inputs = (like, init_keys, positions, lane_keys, observables, capacity, rao_blackwell)
     loop = compile_ahead(advance, loop_arguments, inputs)
     return compile_ahead(_init, lambda: (like, init_keys, positions, None), inputs, after=loop), loop
+
+
+@jit(once=True)
+def _copied(tree):
+    """A copy of `tree`'s arrays on the device."""
+    return jax.tree.map(jnp.copy, tree)
 
 
 def _zeros_like(tree):
@@ -409,35 +415,40 @@ def sample(
             if int(carry.step) != done + finishing_steps:
                 raise CheckpointError(f"checkpoint {checkpoint} is inconsistent: step {int(carry.step)}, header {done}")
 
-    scalars = (jnp.asarray(thin, jnp.int32), rao_blackwell, sharding)
+    thin_array = jnp.asarray(thin, jnp.int32)
+    chunk_of = lambda length, finishing, width=0: Chunk(  # noqa: E731
+        sampler, observe, lane_keys, jnp.asarray(length, jnp.int32), jnp.asarray(finishing), thin_array, rao_blackwell, sharding, width
+    )
     width = finishing_width(num_lanes // (1 if sharding is None else sharding.num_devices))
     run: RunCarry = carry  # the committed carry: the last chunk the host has waited for
     head = carry  # the carry of the last chunk dispatched (the next chunk starts from it)
     trace_rows: list[tuple] = []  # per-chunk totals, from the chunks' reports
+    committed_steps = done
 
     def dispatch(length: int) -> Callable[[], int]:
         """Dispatch a chunk after the last one dispatched; the function returned waits for it and commits it."""
         nonlocal head
-        carry, report = advance(sampler, observe, head, lane_keys, jnp.asarray(length, jnp.int32), jnp.asarray(False), *scalars)
+        carry, report = advance(chunk_of(length, False), head)  # `head`'s buffers are donated to `carry`
         head = carry
 
         def commit() -> int:
-            nonlocal run
-            steps, time_, accepted, regenerations, _ = (np.asarray(x) for x in report)  # waits for the chunk
-            run = carry  # one assignment: all or nothing
-            trace_rows.append((int(run.step), int(steps) * num_lanes, float(time_), float(accepted), float(regenerations)))
-            return int(steps)
+            nonlocal run, committed_steps
+            steps, time_, accepted, regenerations, _ = (int(x) if x.dtype.kind == "i" else float(x) for x in map(np.asarray, report))  # waits
+            run, committed_steps = carry, committed_steps + steps  # (`carry` may have given its buffers to the next chunk already)
+            trace_rows.append((committed_steps, steps * num_lanes, time_, accepted, regenerations))
+            return steps
 
         return commit
 
     def save(_steps: int, wall_time: float) -> None:
         assert saver is not None
-        saver.save(run, done=int(run.step), wall_time=wall_time)  # the committed run's own count
+        saver.save(run, done=committed_steps, wall_time=wall_time)  # the driver saves only a committed run that still holds its buffers
 
     finisher = None
     if width is not None and has_tours and finish_tours and sharding is None and os.environ.get("RESTORE_COMPILE_AHEAD", "1") != "0":
         # the narrow finishing program compiles in the background while the budget runs
-        arguments = lambda: (sampler, observe, _zeros_like(carry), lane_keys, np.zeros((), np.int32), rao_blackwell, None, width)
+        zero = np.zeros((), np.int32)
+        arguments = lambda: (Chunk(sampler, observe, lane_keys, zero, np.zeros((), bool), zero, rao_blackwell, None, width), _zeros_like(carry))
         finisher = compile_ahead(finish, arguments, (sampler, observe, carry, lane_keys, rao_blackwell, width))
     label = f"{type(sampler).__name__}: {num_lanes} lanes"
     if sharding is not None:
@@ -457,20 +468,21 @@ def sample(
     session_start, spent = time.perf_counter(), outcome.elapsed
     elapsed = lambda: spent + time.perf_counter() - session_start  # noqa: E731
     if interrupted:
-        done = int(run.step)  # the last chunk that finished
+        done = committed_steps  # the last chunk that finished
         warnings.warn(f"interrupted after {done} of {num_steps} steps; returning the partial result", stacklevel=2)
     if has_tours and not interrupted and finish_tours and not finished:
+        budget_run = _copied(run)  # the finishing takes `run`'s buffers; Ctrl-C during it returns this
         try:
             limit = jnp.asarray(num_steps, jnp.int32)
             if width is None:  # every lane until the last open tour ends
-                ended, report = advance(sampler, observe, run, lane_keys, limit, jnp.asarray(True), *scalars)
+                ended, report = advance(chunk_of(limit, True), run)
             else:  # a narrower batch of the open lanes
                 wait(finisher)
-                ended, report = finish(sampler, observe, run, lane_keys, limit, rao_blackwell, sharding, width)
+                ended, report = finish(chunk_of(limit, True, width), run)
             extra, still_open = int(report.steps), int(report.open_tours)  # waits for the finishing
             run, finishing_steps, unfinished = ended, extra, still_open
         except KeyboardInterrupt:  # keep the budget's result; its open tours are dropped
-            interrupted = True
+            run, interrupted = budget_run, True
             warnings.warn("interrupted while finishing the open tours; returning the result without them", stacklevel=2)
     if saver is not None and not interrupted and not finished:
         saver.save(run, done=done, wall_time=elapsed(), finished=True, finishing_steps=finishing_steps, unfinished=unfinished)

@@ -58,14 +58,16 @@ def _power_of_two_at_most(n: float) -> int:
 
 
 def tail_rows(num_lanes: int, size: int) -> int:
-    """Rows of the buffer: a power of two near `ROWS_PER_LANE` per lane, within the memory cap."""
-    wanted = 1 << max(int(ROWS_PER_LANE * num_lanes - 1).bit_length(), 1)
-    return int(min(max(wanted, MIN_ROWS), _power_of_two_at_most(MAX_ELEMENTS / (size + 3))))
+    """Rows of the buffer: a power of two near `ROWS_PER_LANE` per lane, within the memory cap, and
+    at least four per lane (room for every lane's row of a step after a compaction: `_exceedances.offer`)."""
+    power = lambda n: 1 << max(int(n - 1).bit_length(), 1)
+    wanted = min(max(power(ROWS_PER_LANE * num_lanes), MIN_ROWS), _power_of_two_at_most(MAX_ELEMENTS / (size + 3)))
+    return int(max(wanted, power(4 * num_lanes)))
 
 
-def offer_batch(num_lanes: int, rows: int) -> int:
-    """Rows gathered per insertion: about the tours a step ends, within half a buffer."""
-    return int(min(rows // 2, max(32, num_lanes // 8)))
+def offer_batch(num_lanes: int) -> int:
+    """Rows gathered per insertion: about the tours a step ends (and at most every lane's)."""
+    return int(min(num_lanes, max(32, num_lanes // 8)))
 
 
 def init_tails(rows: int, size: int, dtype) -> TourTailBuffers:
@@ -81,16 +83,14 @@ def offer_tours(
     ended: Bool[Array, " N"],
     log_importance_weight: Float[Array, " N"],
     drawn: Bool[Array, " N"],
-    batch: int | None = None,
 ) -> TourTailBuffers:
-    """The buffer after the tours that `ended` and the starts `drawn` at `N` lanes (`batch`
-    rows above a threshold are appended at a time; default `offer_batch`)."""
+    """The buffer after the tours that `ended` and the starts `drawn` at `N` lanes (rows above a
+    threshold are appended `offer_batch(N)` at a time)."""
     rows = jnp.concatenate(
         [jnp.where(ended, duration, 0.0)[:, None], jnp.where(ended[:, None], integral, 0.0), jnp.where(drawn, log_importance_weight, -jnp.inf)[:, None]],
         axis=1,
     )
-    batch = offer_batch(lane.shape[0], tails.capacity) if batch is None else min(batch, tails.capacity // 2)
-    return offer(tails, rows, lane, ended | drawn, SCORING, batch)
+    return offer(tails, rows, lane, ended | drawn, SCORING, offer_batch(lane.shape[0]))
 
 
 def tour_tails(buffers: TourTailBuffers) -> TourTails:

@@ -21,7 +21,7 @@ def record(arrays: dict, name: str, result) -> None:
 @contextlib.contextmanager
 def ctrl_c_after(chunks: int):
     """Inside, `restore.sample` is interrupted (`KeyboardInterrupt`) when it dispatches chunk
-    `chunks + 1`: chunk `chunks` is then in flight, so the first `chunks - 1` are committed."""
+    `chunks + 1` (the chunk in flight, the last, is waited for and committed)."""
     import restore._sample as sample_module
 
     advance, calls = sample_module.advance, []

@@ -9,12 +9,18 @@ the weighted mean `log u` of the rest; draws are split by group (lane or chain),
 draws of one lane are correlated. Bigger models must earn their cost: the cheapest
 candidate within `tolerance` nats of the best wins, and no candidate may cost more than
 `max_cost` multiply-adds per evaluation, since a Restore step evaluates `u` every time.
+
+What the search costs is kept small: products of one-dimensional mixtures are fitted to
+every draw (their EM runs on binned coordinates), mixtures over all coordinates to a
+random subset of `mixture_draws`, the Student-t families only from the size that their
+Gaussian family scored best with, and candidates are scored on at most `mixture_draws`
+held-out draws.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import NamedTuple
 
 import numpy as np
@@ -43,12 +49,12 @@ class Choice(NamedTuple):
     candidates: tuple[Candidate, ...]
 
 
-def _fit(family: str, x, w, k: int, seed: int) -> Fit:
+def _fit(family: str, x, w, k: int, seed: int, init_means=None) -> Fit:
     if family == "product":
         return fit_product(x, w, k, seed=seed)
     covariance = "diagonal" if family.startswith("diagonal") else "full"
     df = STUDENT_DF if family.endswith("-t") else None
-    return fit_mixture(x, w, k, covariance=covariance, df=df, seed=seed)
+    return fit_mixture(x, w, k, covariance=covariance, df=df, seed=seed, init_means=init_means)
 
 
 def _cost(family: str, k: int, d: int) -> int:
@@ -65,7 +71,9 @@ def choose_regeneration(
     max_cost: int | None = None,
     holdout: float = 0.25,
     tolerance: float = 0.02,
-    max_draws: int = 20_000,
+    max_draws: int = 100_000,
+    mixture_draws: int = 8192,
+    sizes: Mapping[str, int] | None = None,
     seed: int = 0,
 ) -> Choice:
     """Fit each family with 1, 2, 4, ... components and keep the best by held-out likelihood.
@@ -75,13 +83,21 @@ def choose_regeneration(
         weights: `(n,)` their weights.
         groups: `(n,)` group labels (lanes, chains); whole groups are held out.
         families: among `"product"`, `"diagonal"`, `"diagonal-t"`, `"full"`, `"full-t"`.
+            A Student-t family is tried from the number of components its Gaussian family
+            scored best with (when that family is tried too), doubling while it improves.
         max_components: the largest number of components tried.
         max_cost: the largest cost (multiply-adds per log density) allowed; default
             `max(4096, 64 d)`.
         holdout: share of the groups held out for scoring.
         tolerance: a costlier candidate must score this many nats better.
-        max_draws: fits use at most this many draws (a random subset).
-        seed: seed of the split, the subset and the initialisations.
+        max_draws: at most this many draws are used (a random subset); products of
+            one-dimensional mixtures are fitted to all of them.
+        mixture_draws: mixtures over all coordinates are fitted to at most this many
+            draws (a random subset), and candidates scored on at most this many.
+        sizes: for some `Fit.family` labels, a number of components a run has been compiled
+            for already (`Fit.padded`): a candidate of that family with fewer components
+            costs as much as that many, so among them the best scoring one is chosen.
+        seed: seed of the split, the subsets and the initialisations.
 
     Returns:
         The chosen candidate refitted on all (subset) draws, and the scored candidates.
@@ -97,27 +113,41 @@ def choose_regeneration(
     ok = np.isfinite(w) & (w > 0) & np.all(np.isfinite(x), axis=1)
     x, w, g = x[ok], w[ok], g[ok]
     if x.shape[0] > max_draws:
-        pick = rng.choice(x.shape[0], max_draws, replace=False, p=None)
+        pick = rng.choice(x.shape[0], max_draws, replace=False)
         x, w, g = x[pick], w[pick], g[pick]
     labels = np.unique(g)
     if labels.size < 4:
         raise ValueError(f"need draws from at least 4 groups (lanes or chains) to hold some out, got {labels.size}")
     held = rng.choice(labels, max(1, round(holdout * labels.size)), replace=False)
     test = np.isin(g, held)
+    train, scored = _at_most(np.flatnonzero(~test), mixture_draws, rng), _at_most(np.flatnonzero(test), mixture_draws, rng)
     max_cost = max(4096, 64 * d) if max_cost is None else int(max_cost)
+    sizes = dict(sizes or {})
+
+    def cost(family: str, k: int) -> int:
+        return _cost(family, max(k, int(sizes.get(_fit_name(family), 0))), d)
 
     candidates: list[Candidate] = []
+    fits: dict[tuple[str, int], Fit] = {}
     for family in families:
-        best_here = -math.inf
+        on = ~test if family == "product" else train  # products are fitted to every training draw (binned)
+        largest = min(max_components, max(1, int(np.sum(on)) // (4 * d + 4)))
+        base = _base(family)
         k = 1
-        while k <= max_components and _cost(family, k, d) <= max_cost and k <= max(1, (~test).sum() // (4 * d + 4)):
+        if base != family and base in families:  # the Student-t version from the size its Gaussian family liked best
+            scored_base = [c for c in candidates if c.family == _fit_name(base)]
+            if scored_base:
+                k = max(scored_base, key=lambda c: c.score).num_components
+        best_here = -math.inf
+        while k <= largest and _cost(family, k, d) <= max_cost:
             try:
-                fit = _fit(family, x[~test], w[~test], k, seed)
+                fit = _fit(family, x[on], w[on], k, seed)
             except (ValueError, np.linalg.LinAlgError):
                 break
-            logp = fit.log_prob(x[test])
-            score = float(np.sum(w[test] * logp) / np.sum(w[test])) if np.all(np.isfinite(logp)) else -math.inf
-            candidates.append(Candidate(fit.family, k, fit.cost, score))
+            logp = fit.log_prob(x[scored])
+            score = float(np.sum(w[scored] * logp) / np.sum(w[scored])) if np.all(np.isfinite(logp)) else -math.inf
+            candidates.append(Candidate(fit.family, k, cost(family, k), score))
+            fits[family, k] = fit
             if score < best_here + tolerance / 4:  # no longer improving: larger K will not either
                 break
             best_here = max(best_here, score)
@@ -127,7 +157,23 @@ def choose_regeneration(
     best = max(c.score for c in candidates)
     chosen = min((c for c in candidates if c.score >= best - tolerance), key=lambda c: (c.cost, -c.score))
     family = next(f for f in families if _fit_name(f) == chosen.family)
-    return Choice(_fit(family, x, w, chosen.num_components, seed), tuple(candidates))
+    k = chosen.num_components
+    if family == "product":
+        fit = _fit(family, x, w, k, seed)
+    else:  # all the draws a mixture may use, started from the candidate's components
+        every = _at_most(np.arange(x.shape[0]), mixture_draws, rng)
+        fit = _fit(family, x[every], w[every], k, seed, init_means=fits[family, k].parameters["means"])  # type: ignore[index]
+    return Choice(fit, tuple(candidates))
+
+
+def _at_most(indices: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
+    """`indices`, or a random subset of `n` of them (in order)."""
+    return indices if indices.size <= n else np.sort(rng.choice(indices, n, replace=False))
+
+
+def _base(family: str) -> str:
+    """The Gaussian family of a family name (`"diagonal-t"` -> `"diagonal"`)."""
+    return family.removesuffix("-t")
 
 
 def _fit_name(family: str) -> str:

@@ -6,10 +6,19 @@ expectation-maximisation with a weak prior that keeps every component alive and 
 covariance positive definite:
 
 - `fit_mixture`: `K` Gaussian or Student-t components (fixed `df`), full or diagonal.
-- `fit_product`: a product of one-dimensional Gaussian mixtures.
+- `fit_product`: a product of one-dimensional Gaussian mixtures. Its EM runs on each
+  coordinate's draws gathered into `PRODUCT_BINS` groups of consecutive values (their
+  weighted counts, sums and sums of squares, which make the M-step exact for
+  responsibilities that are constant within a group), so its cost does not grow with the
+  number of draws beyond sorting them.
 
 Weights are normalised to the effective sample size `(sum w)^2 / sum w^2`, so the prior
 counts as a fixed number of pseudo-draws whatever the scale of the weights.
+
+Every fit can build its distribution padded with components of zero weight
+(`Fit.padded`): the padded distribution has the same density and draws, and its arrays
+have the shapes of the larger size, so a Restore run compiled for one fit runs every fit
+of the same family with at most that many components.
 """
 
 from __future__ import annotations
@@ -19,6 +28,7 @@ import math
 from collections.abc import Callable
 from typing import Literal, NamedTuple
 
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from scipy.special import gammaln
@@ -37,25 +47,37 @@ Covariance = Literal["full", "diagonal"]
 PRIOR_DRAWS = 1.0
 #: The prior covariance of a component, as a share of the overall covariance.
 PRIOR_SHARE = 1e-2
+#: Groups of consecutive values per coordinate that a product fit's EM runs on.
+PRODUCT_BINS = 512
 
 
 class Fit(NamedTuple):
     """A fitted regeneration distribution and its NumPy log density (for scoring).
 
     The JAX distribution is built when `distribution` is first read: a candidate that is
-    only scored never builds it (a `Mixture` traces its components' samplers when built).
+    only scored never builds it.
     """
 
-    build: Callable[[], object]  # makes the distribution, once
+    build: Callable[[int], object]  # makes the distribution with that many components, once per size
     log_prob: Callable[[np.ndarray], np.ndarray]  # (n, d) float64 -> (n,)
     family: str
     num_components: int
     cost: int  # multiply-adds of one log density: what each Restore step pays for it
+    parameters: dict | None = None  # the fitted arrays (NumPy), e.g. to start another fit from
 
     @property
     def distribution(self):
         """The fitted distribution (a `restore.regeneration` distribution)."""
-        return self.build()
+        return self.build(self.num_components)
+
+    def padded(self, size: int):
+        """The fitted distribution with `size >= num_components` components, the extra ones
+        of weight zero (log weight `-inf`): the same density and draws, in arrays of the
+        shapes of `size` components, so that one compiled program runs every fit of this
+        family with at most `size` components."""
+        if int(size) < self.num_components:
+            raise ValueError(f"cannot pad {self.num_components} components to {size}")
+        return self.build(int(size))
 
 
 def logsumexp(a: np.ndarray, axis: int) -> np.ndarray:
@@ -210,7 +232,7 @@ def fit_mixture(
             idx = np.arange(d)
             covs[:, idx, idx] = (np.maximum(spread, 0.0) + PRIOR_DRAWS * np.diag(prior_cov)) / (nk + PRIOR_DRAWS)[:, None]
         else:
-            scatter = np.stack([(xt * ru[j]) @ x for j in range(k)])
+            scatter = (ru[:, None, :] * xt) @ x  # (K, d, d), one batched product
             scatter -= np.einsum("ki,kj,k->kij", means, means, ru_sum)
             covs = (scatter + PRIOR_DRAWS * prior_cov) / (nk + PRIOR_DRAWS)[:, None, None]
             covs = 0.5 * (covs + np.swapaxes(covs, 1, 2))
@@ -218,6 +240,21 @@ def fit_mixture(
             break
         previous = current
     return _mixture_fit(mix, means, covs, df, diagonal)
+
+
+def _padded_log_weights(log_w: np.ndarray, size: int, axis: int = -1) -> np.ndarray:
+    """`log_w` normalised along `axis` and extended to `size` entries there with `-inf`."""
+    log_w = log_w - np.log(np.sum(np.exp(log_w), axis=axis, keepdims=True))
+    pad = [(0, 0)] * log_w.ndim
+    pad[axis] = (0, size - log_w.shape[axis])
+    return np.pad(log_w, pad, constant_values=-np.inf)
+
+
+def _repeat_first(a: np.ndarray, size: int, axis: int = 0) -> np.ndarray:
+    """`a` extended to `size` entries along `axis` with copies of its first entry (the
+    parameters of zero-weight components: any valid values do)."""
+    extra = size - a.shape[axis]
+    return np.concatenate([a, np.repeat(np.take(a, [0], axis=axis), extra, axis=axis)], axis=axis)
 
 
 def _mixture_fit(mix, means, covs, df, diagonal: bool) -> Fit:
@@ -229,21 +266,46 @@ def _mixture_fit(mix, means, covs, df, diagonal: bool) -> Fit:
     else:
         factor = np.linalg.cholesky(covs)
         cost = k * d * d
+    log_mix = np.log(mix)
 
     @functools.cache
-    def build():
-        if diagonal:
-            return DiagonalMixture(jnp.asarray(mix, dtype), jnp.asarray(means, dtype), jnp.asarray(factor, dtype), df)
-        make = (lambda m, c: Gaussian(m, c)) if df is None else (lambda m, c: StudentT(m, c, df))
-        return Mixture([make(jnp.asarray(m, dtype), jnp.asarray(c, dtype)) for m, c in zip(means, covs)], jnp.asarray(mix, dtype))
-    log_mix = np.log(mix)[:, None]
+    def build(size: int):
+        log_w = jnp.asarray(_padded_log_weights(log_mix, size), dtype)
+        m, f = _repeat_first(means, size), _repeat_first(factor, size)
+        if diagonal:  # built with placeholder weights (the constructor refuses zeros), then given the padded ones
+            out = DiagonalMixture(np.ones(size), jnp.asarray(m, dtype), jnp.asarray(f, dtype), df)
+            return eqx.tree_at(lambda u: u.log_weights, out, log_w)
+        # Components from one checked template, with the Cholesky factors computed here; the
+        # mixture from one component, then given all of them (it would trace every one's sampler).
+        template = Gaussian(jnp.asarray(means[0], dtype), covs[0]) if df is None else StudentT(jnp.asarray(means[0], dtype), covs[0], df)
+        where = (lambda c: (c.mean, c.scale_tril)) if df is None else (lambda c: (c.loc, c.scale_tril))
+        components = tuple(eqx.tree_at(where, template, (jnp.asarray(m[i], dtype), jnp.asarray(f[i], dtype))) for i in range(size))
+        out = Mixture([template])
+        return eqx.tree_at(lambda u: (u.components, u.log_weights), out, (components, log_w))
 
     def log_prob(y):
         logp, _ = _component_terms(np.asarray(y, np.float64), means, factor, df, diagonal)
-        return logsumexp(log_mix + logp, axis=0)
+        return logsumexp(log_mix[:, None] + logp, axis=0)
 
     family = ("diagonal" if diagonal else "full") + ("" if df is None else f" student-t(df={df:g})")
-    return Fit(build, log_prob, family, k, int(cost))
+    return Fit(build, log_prob, family, k, int(cost), dict(weights=mix, means=means, covariances=covs))
+
+
+def _bins(x: np.ndarray, w: np.ndarray, bins: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Each coordinate's draws sorted and gathered into `bins` groups of consecutive values
+    (or one group per draw, when there are no more draws than that): the groups' weights,
+    weighted sums, weighted sums of squares and weighted means, each `(d, m)`."""
+    n = x.shape[0]
+    order = np.argsort(x, axis=0)
+    xs = np.take_along_axis(x, order, axis=0).T  # (d, n), ascending
+    ws = w[order].T
+    if n <= bins:
+        return ws, ws * xs, ws * xs**2, xs
+    starts = (np.arange(bins) * n) // bins
+    weight = np.add.reduceat(ws, starts, axis=1)
+    total = np.add.reduceat(ws * xs, starts, axis=1)
+    squares = np.add.reduceat(ws * xs**2, starts, axis=1)
+    return weight, total, squares, total / weight
 
 
 @single_threaded
@@ -251,7 +313,10 @@ def fit_product(draws, weights, num_components: int, *, seed: int = 0, iteration
     """Weighted EM for a product of one-dimensional `num_components`-component Gaussian mixtures.
 
     Every coordinate is fitted separately (and all at once, vectorised): the fit is the
-    product of the weighted marginals' mixture fits.
+    product of the weighted marginals' mixture fits. The EM runs on each coordinate's
+    draws gathered into `PRODUCT_BINS` groups of consecutive values (the responsibilities
+    of a group are those of its weighted mean; the M-step uses the groups' exact weighted
+    sums and sums of squares).
     """
     x, w = _prepare(draws, weights)
     n, d = x.shape
@@ -261,41 +326,49 @@ def fit_product(draws, weights, num_components: int, *, seed: int = 0, iteration
     rng = np.random.default_rng(seed)
     total = w.sum()
     var = np.cov(x.T, aweights=w).reshape(d, d).diagonal() + 1e-300
+    weight, first, second, centre = _bins(x, w, PRODUCT_BINS)  # (d, m) each, in ascending order
+    m = centre.shape[1]
     # Start at weighted quantiles of each coordinate, with a little jitter.
     qs = (np.arange(k) + 0.5) / k
-    order = np.argsort(x, axis=0)
-    cw = np.cumsum(w[order], axis=0) / total
-    means = np.stack([x[order[np.minimum(np.searchsorted(cw[:, j], qs), n - 1), j], j] for j in range(d)])
+    cw = np.cumsum(weight, axis=1) / total
+    means = np.stack([centre[j, np.minimum(np.searchsorted(cw[j], qs), m - 1)] for j in range(d)])
     means = means + 1e-3 * np.sqrt(var)[:, None] * rng.standard_normal(means.shape)
     scales = np.broadcast_to(np.sqrt(var)[:, None] / k, (d, k)).copy()
     mix = np.full((d, k), 1.0 / k)
     prior_var = PRIOR_SHARE * var[:, None]
     previous = -np.inf
-    xt = np.ascontiguousarray(x.T)[:, None, :]  # (d, 1, n): coordinates, components, draws
-    x2 = xt[:, 0, :, None] ** 2  # (d, n, 1)
+    c = centre[:, None, :]  # (d, 1, m): coordinates, components, groups
     for _ in range(iterations):
-        z = (xt - means[:, :, None]) / scales[:, :, None]
+        z = (c - means[:, :, None]) / scales[:, :, None]
         joint = (np.log(mix) - np.log(scales) - 0.5 * math.log(2 * math.pi))[:, :, None] - 0.5 * z**2
-        norm, r = normalise(joint, axis=1)  # (d, n), (d, k, n)
-        current = float(np.sum(norm @ w) / total)
-        r *= w  # weighted responsibilities
-        nk = r.sum(axis=2)
+        norm, r = normalise(joint, axis=1)  # (d, m), (d, k, m)
+        current = float(np.sum(norm * weight) / total)
+        nk = (r @ weight[:, :, None])[..., 0]  # (d, k)
+        means = (r @ first[:, :, None])[..., 0] / np.maximum(nk, 1e-300)
+        spread = (r @ second[:, :, None])[..., 0] - means**2 * nk
         mix = (nk + PRIOR_DRAWS / k) / (total + PRIOR_DRAWS)
-        means = (r @ xt[:, 0, :, None])[..., 0] / np.maximum(nk, 1e-300)
-        spread = (r @ x2)[..., 0] - means**2 * nk
         scales = np.sqrt((np.maximum(spread, 0.0) + PRIOR_DRAWS * prior_var) / (nk + PRIOR_DRAWS))
         if current - previous < tolerance * d:
             break
         previous = current
+    return _product_fit(mix, means, scales)
+
+
+def _product_fit(mix: np.ndarray, means: np.ndarray, scales: np.ndarray) -> Fit:
+    d, k = means.shape
     dtype = jnp.result_type(float)
-    build = functools.cache(
-        lambda: ProductMixture(jnp.asarray(mix, dtype), jnp.asarray(means, dtype), jnp.asarray(scales, dtype))
-    )
-    offset = (np.log(mix) - np.log(scales) - 0.5 * math.log(2 * math.pi))[:, :, None]
+    log_mix = np.log(mix)
+
+    @functools.cache
+    def build(size: int):
+        out = ProductMixture(np.ones((d, size)), jnp.asarray(_repeat_first(means, size, 1), dtype), jnp.asarray(_repeat_first(scales, size, 1), dtype))
+        return eqx.tree_at(lambda u: u.log_weights, out, jnp.asarray(_padded_log_weights(log_mix, size), dtype))
+
+    offset = (log_mix - np.log(scales) - 0.5 * math.log(2 * math.pi))[:, :, None]
 
     def log_prob(y):
         yt = np.asarray(y, np.float64).T[:, None, :]
         z = (yt - means[:, :, None]) / scales[:, :, None]
         return logsumexp(offset - 0.5 * z**2, axis=1).sum(axis=0)
 
-    return Fit(build, log_prob, "product", k, int(k * d))
+    return Fit(build, log_prob, "product", k, int(k * d), dict(weights=mix, means=means, scales=scales))

@@ -110,8 +110,8 @@ MIN_TAIL_ROWS = 2**13
 
 
 def tail_rows(lanes: int) -> int:
-    """Rows of the buffer of the longest tour durations: a power of two."""
-    return 1 << max(int(max(MIN_TAIL_ROWS, TAIL_ROWS_PER_LANE * lanes) - 1).bit_length(), 1)
+    """Rows of the buffer of the longest tour durations: a power of two (room for an offer of every lane)."""
+    return 1 << max(int(max(MIN_TAIL_ROWS, TAIL_ROWS_PER_LANE * lanes, 4 * lanes + 64) - 1).bit_length(), 1)
 
 
 class RestoreParams(NamedTuple):
@@ -214,7 +214,7 @@ def _end_tours(state, duration: Float[Array, " N"], ended: Bool[Array, " N"], la
     (`lane`: the lanes' indices, default `0 ... N - 1`) and added to the duration sums; their
     lanes' running durations restart at 0."""
     lane = jnp.arange(duration.shape[0], dtype=jnp.int32) if lane is None else lane
-    batch = min(state.tails.capacity // 2, max(32, duration.shape[0] // 4))
+    batch = max(32, duration.shape[0] // 4)
     tails = offer(state.tails, duration[:, None], lane, ended, 0, batch)
     finished = jnp.where(ended, duration, 0.0)
     tally = state.tally._replace(

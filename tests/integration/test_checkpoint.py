@@ -106,7 +106,7 @@ def test_sigkill_then_sigint_then_resume_is_bit_identical(reference, tmp_path):
 
 def test_ctrl_c_saves_the_partial_run(reference, tmp_path, monkeypatch):
     """KeyboardInterrupt between chunks: the partial result is returned and saved; resuming completes it.
-    The interrupt comes as the fifth chunk is dispatched, while the fourth runs: three are committed."""
+    The interrupt comes as the fifth chunk is dispatched, while the fourth runs, which is waited for."""
     import restore._sample as sample_module
 
     original, calls = sample_module.advance, []
@@ -118,10 +118,10 @@ def test_ctrl_c_saves_the_partial_run(reference, tmp_path, monkeypatch):
         return original(*args, **kwargs)
 
     monkeypatch.setattr(sample_module, "advance", interrupted_advance)
-    with pytest.warns(UserWarning, match="interrupted after 480 of 8000 steps"):
+    with pytest.warns(UserWarning, match="interrupted after 640 of 8000 steps"):
         partial = child.run(tmp_path / "run.ckpt")
-    assert partial.interrupted and partial.num_steps == 480
-    assert read_header(tmp_path / "run.ckpt")["done"] == 480
+    assert partial.interrupted and partial.num_steps == 640
+    assert read_header(tmp_path / "run.ckpt")["done"] == 640
     monkeypatch.setattr(sample_module, "advance", original)
     assert_identical(child.arrays(child.run(tmp_path / "run.ckpt")), reference)
 
