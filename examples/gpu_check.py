@@ -1,8 +1,11 @@
 """Check that a GPU machine runs the sampler and the renderer, and print their throughput.
 
 1. Jump Restore on a 10-d mixture of three Gaussians, many lanes on the first GPU:
-   steps per second (lanes x steps over the wall time, compilation excluded), and the
-   mode weights against the truth.
+   steps per second (lanes x steps over the wall time, compilation excluded) of
+   `restore.sample` with its open tours finished and for the budget's steps alone, of the
+   bare jump-Restore step (`step_lanes` in a scan) and, if BlackJAX is installed, of
+   BlackJAX's random-walk Metropolis on the same target, lanes, steps and scale, with the
+   ratios to BlackJAX; and the mode weights against the truth.
 2. If the `mitsuba` extra is installed: the Cornell box traced in primary sample space
    (Mitsuba's `cuda_ad_rgb` variant when a CUDA device is usable), in paths per second for
    plain batches, for a short Metropolis Restore render, and for Mitsuba's own `path`
@@ -36,6 +39,55 @@ def gpu_devices() -> list:
         return []
 
 
+def _timed_scan(run, argument) -> tuple[float, float]:
+    """(compile seconds, seconds of a second run) of `jax.jit(run)(key, argument)`."""
+    start = time.perf_counter()
+    compiled = jax.jit(run).lower(jax.random.key(0), argument).compile()
+    compile_seconds = time.perf_counter() - start
+    jax.block_until_ready(compiled(jax.random.key(0), argument))
+    start = time.perf_counter()
+    jax.block_until_ready(compiled(jax.random.key(1), argument))
+    return compile_seconds, time.perf_counter() - start
+
+
+def bare_step_seconds(sampler, lanes: int, steps: int) -> tuple[float, float]:
+    """The jump-Restore step alone (`step_lanes` in a scan, a running Rao-Blackwellised sum)."""
+    import restore
+
+    states = jax.vmap(sampler.init)(jax.random.split(jax.random.key(0), lanes))
+
+    def run(key, states):
+        def body(carry, key):
+            states, total = carry
+            states, info = sampler.step_lanes(jax.random.split(key, lanes), states)
+            return (states, total + info.expected_holding_time[:, None] * info.position), None
+
+        key = restore.unrolled_keys(key)
+        return jax.lax.scan(body, (states, jax.numpy.zeros_like(states.position)), jax.random.split(key, steps))[0][1]
+
+    return _timed_scan(run, states)
+
+
+def blackjax_seconds(logdensity, scale: float, x0, steps: int) -> tuple[float, float] | None:
+    """BlackJAX's random-walk Metropolis in a scan over `vmap(step)`, a running sum of positions (`None` without BlackJAX)."""
+    try:
+        import blackjax
+    except ImportError:
+        return None
+    lanes, dim = x0.shape
+    rmh = blackjax.additive_step_random_walk.normal_random_walk(logdensity, scale * jax.numpy.ones(dim))
+
+    def run(key, x0):
+        def body(carry, key):
+            states, total = carry
+            states, _ = jax.vmap(rmh.step)(jax.random.split(key, lanes), states)
+            return (states, total + states.position), None
+
+        return jax.lax.scan(body, (jax.vmap(rmh.init)(x0), jax.numpy.zeros_like(x0)), jax.random.split(key, steps))[0][1]
+
+    return _timed_scan(run, x0)
+
+
 def check_sampler(lanes: int, steps: int) -> None:
     import warnings
 
@@ -45,7 +97,8 @@ def check_sampler(lanes: int, steps: int) -> None:
     target = well_separated_gaussian_mixture(dim=10, num_modes=3)
     starts = 6.0 * jax.random.normal(jax.random.key(0), (64, 10))
     nu = restore.regeneration.laplace_mixture(target.logdensity, starts, tails="student_t", df=5)
-    sampler = restore.JumpRestore(target.logdensity, restore.local.RandomWalk(0.75), nu, tour_length=10.0)
+    scale = 0.75
+    sampler = restore.JumpRestore(target.logdensity, restore.local.RandomWalk(scale), nu, tour_length=10.0)
     modes = lambda x: jax.nn.one_hot(target.assign_mode(x), 3)  # noqa: E731
     kwargs = dict(num_lanes=lanes, observables={"modes": modes}, progress=False, max_draws=0, num_chunks=1)
     with warnings.catch_warnings():
@@ -54,12 +107,24 @@ def check_sampler(lanes: int, steps: int) -> None:
         restore.sample(sampler, jax.random.key(1), num_steps=10, **kwargs)  # compiles the loop once
         compile_seconds = time.perf_counter() - start
         result = restore.sample(sampler, jax.random.key(2), num_steps=steps, **kwargs)
+        budget = restore.sample(sampler, jax.random.key(2), num_steps=steps, finish_tours=False, **kwargs)
     estimate = result.estimate("modes")
+    work = lanes * steps
     print(f"sampler: jump Restore, 10-d mixture, {lanes:,} lanes x {steps:,} steps in {result.wall_time:.2f} s "
-          f"(+{compile_seconds:.1f} s to compile)")
-    print(f"  {lanes * steps / result.wall_time:,.0f} steps/s")
+          f"(+{compile_seconds:.1f} s to compile; {result.finishing_steps} finishing steps, "
+          f"{result.unfinished_tours} tours still open)")
     print(f"  mode weights {np.round(estimate.value, 4)} +- {np.round(estimate.standard_error, 4)} "
           f"(truth {np.round(np.asarray(target.weights), 4)})")
+    rows = [("restore.sample", result.wall_time, compile_seconds), ("restore.sample, budget only", budget.wall_time, None)]
+    bare_compile, bare = bare_step_seconds(sampler.calibrate(jax.random.key(9))[0], lanes, steps)
+    rows.append(("jump-Restore step (no driver)", bare, bare_compile))
+    peer = blackjax_seconds(target.logdensity, scale, target.sample(jax.random.key(3), lanes), steps)
+    if peer is not None:
+        rows.append(("BlackJAX RMH", peer[1], peer[0]))
+    for label, seconds, compiled in rows:
+        ratio = f"{peer[1] / seconds:6.3f} of BlackJAX" if peer is not None else ""
+        compile_note = "" if compiled is None else f", compiled in {compiled:.1f} s"
+        print(f"  {label:30s} {work / seconds:16,.0f} steps/s {ratio}{compile_note}")
 
 
 def check_render(resolution: int, seconds: float, lanes: int) -> None:

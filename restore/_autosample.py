@@ -33,6 +33,7 @@ from __future__ import annotations
 import math
 import time
 import warnings
+import weakref
 from collections.abc import Callable, Mapping, Sequence
 from typing import NamedTuple
 
@@ -41,6 +42,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, PRNGKeyArray
 
+from ._compile import jit
 from ._jump_restore import JumpRestore
 from ._pareto import K_HAT_LIMIT
 from ._progress import console_note
@@ -59,7 +61,7 @@ from .regeneration import (
     UniformBox,
     choose_regeneration,
 )
-from .regeneration._choose import FAMILIES
+from .regeneration._choose import FAMILIES, padded_size
 
 #: A stage is healthy when the tail shape of its tour durations is below this...
 HEALTHY_DURATION_K = 0.3
@@ -67,6 +69,21 @@ HEALTHY_DURATION_K = 0.3
 HEALTHY_IMPORTANCE_K = K_HAT_LIMIT
 #: Degrees of freedom of the defensive component built from a box or a scale.
 DEFENSIVE_DF = 3.0
+
+#: Per log density and dimension, the number of components each regeneration family was last
+#: run with (padded with zero-weight components: `Fit.padded`). A Restore run's programs are
+#: compiled for the regeneration's structure and array shapes, so stages (and later calls)
+#: whose fits are padded to these sizes run on programs compiled already.
+_PROGRAM_SIZES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _program_sizes(logdensity, dim: int, dtype) -> dict[str, int]:
+    """The family sizes remembered for this log density (a fresh dict if it cannot be remembered)."""
+    try:
+        per_target = _PROGRAM_SIZES.setdefault(logdensity, {})
+    except TypeError:  # not weakly referable
+        return {}
+    return per_target.setdefault((dim, jnp.dtype(dtype).name), {})
 
 
 class StageReport(NamedTuple):
@@ -198,7 +215,7 @@ def _user_knowledge(box, scale, loc, prior, dim, dtype):
             raise ValueError("box must be (lower, upper) with finite 1-d bounds and upper > lower everywhere")
         centre, half = 0.5 * (lower + upper), 0.5 * (upper - lower)
         starts = UniformBox(jnp.asarray(lower, dtype), jnp.asarray(upper, dtype))
-        return starts, StudentT(jnp.asarray(centre, dtype), jnp.asarray(half**2, dtype), DEFENSIVE_DF)
+        return starts, _diagonal_t(centre, half, dtype)
     scale = np.asarray(scale, np.float64)
     if loc is None:
         if scale.ndim == 0 and dim is None:
@@ -208,8 +225,14 @@ def _user_knowledge(box, scale, loc, prior, dim, dtype):
     scale = np.broadcast_to(scale, loc.shape)
     if not (np.all(np.isfinite(scale)) and np.all(scale > 0) and np.all(np.isfinite(loc))):
         raise ValueError("scale must be positive and finite, and loc finite")
-    t = StudentT(jnp.asarray(loc, dtype), jnp.asarray(scale**2, dtype), DEFENSIVE_DF)
-    return t, t
+    return StudentT(jnp.asarray(loc, dtype), jnp.asarray(scale**2, dtype), DEFENSIVE_DF), _diagonal_t(loc, scale, dtype)
+
+
+def _diagonal_t(centre: np.ndarray, scale: np.ndarray, dtype) -> DiagonalMixture:
+    """The Student-t with `DEFENSIVE_DF` degrees of freedom and diagonal scales: the defensive
+    component, as a one-component diagonal mixture (`O(d)` per evaluation, where the same
+    distribution as a `StudentT` would solve with a `(d, d)` factor at every step)."""
+    return DiagonalMixture(np.ones(1), jnp.asarray(centre[None], dtype), jnp.asarray(scale[None], dtype), DEFENSIVE_DF)
 
 
 def typical_scale(regeneration: AbstractRegeneration) -> np.ndarray:
@@ -345,7 +368,7 @@ def autosample(
     check_logdensity(logdensity, d)
     say = console_note if progress else (lambda message: None)
 
-    key_seed, key_starts, key_stages, key_final = jax.random.split(key, 4)
+    key_seed, key_starts, key_final, stage_keys = _keys(key, max_stages)
     clock = time.perf_counter()
     seeds = seed_draws(logdensity, distribution_draws(starts_from, key_starts, num_lanes), key_seed, num_steps=seed_steps)
     seed_report = StageReport(
@@ -356,17 +379,22 @@ def autosample(
     say(f"autosample: {num_lanes} seeding chains, {'MALA' if seeds.uses_gradient else 'random walk'}, acceptance {seeds.acceptance:.2f}")
     draws, weights, groups = seeds.positions, np.ones(len(seeds.positions)), seeds.chains
 
-    def regeneration_from(fit):
-        return Mixture([fit.distribution, defend], jnp.asarray([1.0 - defensive, defensive], dtype))
+    sizes = _program_sizes(logdensity, d, dtype)
 
-    def sampler_for(fit, u, log_z):
-        kernel = local if local is not None else RandomWalk(jnp.asarray(2.38 / math.sqrt(d) * typical_scale(fit.distribution), dtype))
+    def regeneration_from(fit):
+        """The fit padded to the size its family last ran with (so that its programs are reused), with the defensive component."""
+        size = padded_size(fit.num_components, sizes.get(fit.family))
+        sizes[fit.family] = size
+        return Mixture([fit.padded(size), defend], jnp.asarray([1.0 - defensive, defensive], dtype))
+
+    def sampler_for(u, log_z):
+        kernel = local if local is not None else RandomWalk(jnp.asarray(2.38 / math.sqrt(d) * typical_scale(u.components[0]), dtype))
         sampler = JumpRestore(logdensity, kernel, u, tour_length=tour_length)
         if log_z is None:
             return sampler, True
         # Calibrated from the stage's log Z, not by a pilot; as a sampler with the same static
         # fields as a piloted one, so that its run reuses the programs compiled for the stage.
-        return sampler.calibrated_to(jnp.asarray(log_z, dtype)), False
+        return sampler.calibrated_to(float(log_z)), False
 
     # Stages store draws in a buffer of the final run's shape, and stream the same observables,
     # so the final run reuses the compiled programs of the stage whose regeneration it takes.
@@ -382,13 +410,13 @@ def autosample(
     log_z = None
     for stage in range(1, max_stages + 1):
         clock = time.perf_counter()
-        choice = choose_regeneration(draws, weights, groups, families=families, seed=stage)
+        choice = choose_regeneration(draws, weights, groups, families=families, seed=stage, sizes=sizes)
         u = regeneration_from(choice.fit)
-        sampler, piloted = sampler_for(choice.fit, u, log_z)
+        sampler, piloted = sampler_for(u, log_z)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             result = sample(
-                sampler, jax.random.fold_in(key_stages, stage), num_lanes=num_lanes, num_steps=stage_steps,
+                sampler, stage_keys[stage - 1], num_lanes=num_lanes, num_steps=stage_steps,
                 observables=observables, progress=progress, max_draws=stage_draws, thin=stage_thin,
                 draw_rows=draw_rows,
             )  # fmt: skip
@@ -400,8 +428,10 @@ def autosample(
             f"k_hat(T) {report.duration_k_hat:.2f}, k_hat(w) {report.importance_k_hat:.2f}"
             + (" - healthy" if report.healthy else "")
         )
-        if math.isfinite(report.log_z):
-            log_z = report.log_z
+        # The next stage's rate from this stage's log Z when its error bar can be trusted, else
+        # from a pilot: tours that outlast a stage bias its log Z (low, by a nat or more in a
+        # first stage), and a rate off by that much makes the next stage's tours that much longer.
+        log_z = _trusted_log_z(result)
         if best is None or preferred(report, best[0]):
             best = (report, choice.fit, u, log_z)
         if report.healthy:  # the final run takes this stage's regeneration
@@ -412,13 +442,33 @@ def autosample(
 
     report, fit, u, log_z = best  # type: ignore[misc]
     clock = time.perf_counter()
-    sampler, piloted = sampler_for(fit, u, log_z)
+    sampler, piloted = sampler_for(u, log_z)
     sample_kwargs.setdefault("progress", progress)
     result = sample(sampler, key_final, num_lanes=num_lanes, num_steps=num_steps, observables=observables, **sample_kwargs)
     final = _stage_report(len(stages), "final", fit, result, sampler.pilot_size if piloted else 0, time.perf_counter() - clock)
     stages.append(final)
     total = sum(s.evaluations for s in stages)
     return AutoResult(result, sampler, u, stages, total, time.perf_counter() - started, report.healthy)
+
+
+@jit(static_argnums=1, once=True)
+def _keys(key: PRNGKeyArray, max_stages: int):
+    """The keys of the seeding chains, their starts, the final run and every stage, in one
+    compiled program (eager splits and folds would compile one each)."""
+    key_seed, key_starts, key_final, *stages = jax.random.split(key, 3 + max_stages)
+    return key_seed, key_starts, key_final, tuple(stages)
+
+
+def _trusted_log_z(result: SampleResult) -> float | None:
+    """A run's `log Z` from its tours, or `None` when it is missing or marked unreliable."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            log_z = result.normalising_constant()
+        except ValueError:
+            return None
+    value = float(log_z.value)
+    return value if math.isfinite(value) and bool(log_z.reliable) else None
 
 
 def preferred(report: StageReport, other: StageReport) -> bool:

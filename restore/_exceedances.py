@@ -155,6 +155,18 @@ def _append(buffer: Exceedances, rows: Float[Array, "S P"], lanes: Int[Array, " 
     )
 
 
+def make_room(buffer: Exceedances, incoming: Array, scoring: Scoring) -> Exceedances:
+    """The buffer, compacted if `incoming` more rows might not fit (one compaction makes room
+    for up to half the buffer)."""
+    return jax.lax.cond(buffer.count + incoming > buffer.capacity, lambda b: compact(b, scoring), lambda b: b, buffer)
+
+
+def append(buffer: Exceedances, rows: Float[Array, "S P"], lanes: Int[Array, " S"], keep: Bool[Array, " S"]) -> Exceedances:
+    """The buffer with the `keep` rows of a batch appended, in order (all `S` rows must fit: `make_room`)."""
+    index = jnp.minimum(batch_lanes(keep, jnp.cumsum(keep, dtype=jnp.int32) - 1, jnp.zeros((), jnp.int32), keep.shape[0]), keep.shape[0] - 1)
+    return _append(buffer, rows[index], lanes[index], jnp.sum(keep, dtype=jnp.int32))
+
+
 def offer(
     buffer: Exceedances, rows: Float[Array, "N P"], lanes: Int[Array, " N"], offered: Bool[Array, " N"], scoring: Scoring, batch: int
 ) -> Exceedances:
@@ -169,8 +181,7 @@ def offer(
     if buffer.capacity < 2 * (rows.shape[0] + batch):
         raise ValueError(f"a buffer of {buffer.capacity} rows is too small for offers of {rows.shape[0]} rows in batches of {batch}")
     wanted = lambda buffer: offered & _above(rows, buffer.threshold, scoring)
-    full = buffer.count + jnp.sum(wanted(buffer), dtype=jnp.int32) + batch > buffer.capacity
-    buffer = jax.lax.cond(full, lambda b: compact(b, scoring), lambda b: b, buffer)
+    buffer = make_room(buffer, jnp.sum(wanted(buffer), dtype=jnp.int32) + batch, scoring)
     candidate = wanted(buffer)
     rank = jnp.cumsum(candidate, dtype=jnp.int32) - 1
     total = rank[-1] + 1

@@ -44,10 +44,11 @@ from ._accumulators import (
     update_step_sums,
 )
 from ._compile import jit_chunk
+from ._exceedances import append, make_room
 from ._observables import Observables
 from ._sharding import LaneSharding, map_devices, map_lanes
 from ._sparse_draws import batch_lanes, draw_slots
-from ._tails import TourTailBuffers, init_tails, offer_tours
+from ._tails import SCORING, TourTailBuffers, init_tails, tail_rows_of, wanted_tours
 from ._threefry import unrolled_keys
 
 
@@ -173,20 +174,23 @@ def _tally(
         keep = lambda new, old: jnp.where(on.reshape((-1,) + (1,) * (new.ndim - 1)), new, old)
         updated, new_states = jax.tree.map(keep, updated, sums), jax.tree.map(keep, new_states, states)
     if batch is not None:
-        updated, histogram = _events(updated, histogram, ended, drawn, integrals, durations, info.log_importance_weight, batch)
-        tails = offer_tours(tails, lane, durations, integrals, ended, info.log_importance_weight, drawn)
+        updated, histogram, tails = _events(updated, histogram, tails, lane, ended, drawn, integrals, durations, info.log_importance_weight, batch)
     return _Tallied(new_states, updated, info.position, weight, histogram, tails)
 
 
-def _events(sums: LaneSums, histogram, ended, drawn, integrals, durations, log_importance_weight, batch: int):
-    """The sums and histogram after the tours that `ended` and the starts `drawn`, `batch` lanes at a time."""
+def _events(sums: LaneSums, histogram, tails, lane, ended, drawn, integrals, durations, log_importance_weight, batch: int):
+    """The sums, histogram and tail buffer after the tours that `ended` and the starts `drawn`,
+    `batch` lanes at a time (the buffer, compacted first if this step's rows above its
+    thresholds might not fit, takes those of each batch)."""
     event = ended | drawn
     num_lanes = event.shape[0]
     rank = jnp.cumsum(event, dtype=jnp.int32) - 1
     total = rank[-1] + 1
+    wanted = wanted_tours(tails, durations, integrals, ended, log_importance_weight, drawn)
+    tails = make_room(tails, jnp.sum(wanted, dtype=jnp.int32) + batch, SCORING)
 
     def body(loop):
-        sums, histogram, start = loop
+        sums, histogram, tails, start = loop
         index = batch_lanes(event, rank, start, batch)
         safe = jnp.minimum(index, num_lanes - 1)
         valid = index < num_lanes
@@ -194,9 +198,11 @@ def _events(sums: LaneSums, histogram, ended, drawn, integrals, durations, log_i
         f, t, w = integrals[safe], durations[safe], log_importance_weight[safe]
         sums = add_events(sums, index, e, d, f, t, w)
         histogram = update_histogram(histogram, t, e)
-        return sums, histogram, start + batch
+        tails = append(tails, tail_rows_of(t, f, e, w, d), lane[safe], wanted[safe] & valid)
+        return sums, histogram, tails, start + batch
 
-    return jax.lax.while_loop(lambda loop: loop[2] < total, body, (sums, histogram, jnp.zeros((), jnp.int32)))[:2]
+    zero = jnp.zeros((), jnp.int32)
+    return jax.lax.while_loop(lambda loop: loop[3] < total, body, (sums, histogram, tails, zero))[:3]
 
 
 def event_batch(sampler, num_lanes: int) -> int | None:

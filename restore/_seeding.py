@@ -123,9 +123,9 @@ def seed_draws(
     """
     starts = jnp.asarray(starts)
     n, d = starts.shape
-    if scales is None:
-        scales = jnp.std(starts, axis=0) + 1e-12
-    scales = jnp.asarray(scales, starts.dtype) / math.sqrt(d)
+    if scales is None:  # on the host: eager device operations would each compile a program
+        scales = np.std(np.asarray(starts, np.float64), axis=0) + 1e-12
+    scales = jnp.asarray(np.asarray(scales, np.float64) / math.sqrt(d), starts.dtype)
     use_gradient = has_gradient(logdensity, d, starts.dtype)
     keep_every = max(1, (num_steps - num_steps // 2) // max(keep, 1))
     kept, acceptance = _chains(logdensity, starts, key, scales, int(num_steps), keep_every, use_gradient)

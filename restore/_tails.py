@@ -75,6 +75,29 @@ def init_tails(rows: int, size: int, dtype) -> TourTailBuffers:
     return init_exceedances(rows, size + 2, dtype)
 
 
+def tail_rows_of(duration: Array, integral: Array, ended: Array, log_importance_weight: Array, drawn: Array) -> Array:
+    """The rows `(T, F_1, ..., F_m, log w)` of some lanes (zeros where no tour ended, `-inf` where no start was drawn)."""
+    return jnp.concatenate(
+        [jnp.where(ended, duration, 0.0)[:, None], jnp.where(ended[:, None], integral, 0.0), jnp.where(drawn, log_importance_weight, -jnp.inf)[:, None]],
+        axis=1,
+    )
+
+
+def wanted_tours(
+    tails: TourTailBuffers,
+    duration: Float[Array, " N"],
+    integral: Float[Array, "N m"],
+    ended: Bool[Array, " N"],
+    log_importance_weight: Float[Array, " N"],
+    drawn: Bool[Array, " N"],
+) -> Bool[Array, " N"]:
+    """The lanes whose tour that ended or start drawn has a score above its column's threshold
+    (compared on the lanes' own arrays, without building their rows)."""
+    bound = jnp.exp(tails.threshold[:-1])
+    tour = (duration > bound[0]) | jnp.any(jnp.abs(integral) > bound[1:], axis=1)
+    return (ended & tour) | (drawn & (log_importance_weight > tails.threshold[-1]))
+
+
 def offer_tours(
     tails: TourTailBuffers,
     lane: Int[Array, " N"],
@@ -85,11 +108,9 @@ def offer_tours(
     drawn: Bool[Array, " N"],
 ) -> TourTailBuffers:
     """The buffer after the tours that `ended` and the starts `drawn` at `N` lanes (rows above a
-    threshold are appended `offer_batch(N)` at a time)."""
-    rows = jnp.concatenate(
-        [jnp.where(ended, duration, 0.0)[:, None], jnp.where(ended[:, None], integral, 0.0), jnp.where(drawn, log_importance_weight, -jnp.inf)[:, None]],
-        axis=1,
-    )
+    threshold are appended `offer_batch(N)` at a time). The run loop does the same inside its
+    batches of tour ends (`_run_loop`)."""
+    rows = tail_rows_of(duration, integral, ended, log_importance_weight, drawn)
     return offer(tails, rows, lane, ended | drawn, SCORING, offer_batch(lane.shape[0]))
 
 

@@ -156,8 +156,10 @@ def as_scale(value: Any, name: str) -> Array:
         arr = arr.astype(float)
     if arr.ndim > 1:
         raise ValueError(f"{name} must be a scalar or a vector of shape (d,), got shape {arr.shape}")
-    if is_concrete(arr) and not bool(jnp.all(jnp.isfinite(arr) & (arr > 0))):
-        raise ValueError(f"{name} must be positive and finite, got {value!r}")
+    if is_concrete(arr):  # checked on the host (an eager device check compiles programs)
+        host = np.asarray(arr)
+        if not bool(np.all(np.isfinite(host) & (host > 0))):
+            raise ValueError(f"{name} must be positive and finite, got {value!r}")
     return arr
 
 

@@ -25,12 +25,21 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._fit import Fit, fit_mixture, fit_product
+from ._fit import Fit, ProductData, fit_binned_product, fit_mixture, product_data
 
 #: The families tried by default, cheapest first.
 FAMILIES = ("product", "diagonal", "diagonal-t", "full", "full-t")
 #: Degrees of freedom of the Student-t families.
 STUDENT_DF = 5.0
+#: A fit is padded to the size a run was compiled for (`sizes`) when that is at most this many
+#: times its own number of components (beyond that, padding costs more per step than compiling).
+PAD_LIMIT = 4
+#: With `sizes`, a candidate that no run has been compiled for must score this many nats
+#: better than the best one that runs on a compiled program (compiling a run takes seconds).
+RECOMPILE_GAIN = 0.1
+#: A family's search stops (from 4 components on) when it trails the best candidate by more
+#: than this many times its largest gain per doubling so far, over every doubling it has left.
+HOPELESS = 3.0
 
 
 class Candidate(NamedTuple):
@@ -49,12 +58,21 @@ class Choice(NamedTuple):
     candidates: tuple[Candidate, ...]
 
 
-def _fit(family: str, x, w, k: int, seed: int, init_means=None) -> Fit:
+#: EM iterations of a mixture candidate during the search (the chosen one is refitted to convergence).
+SEARCH_ITERATIONS = 30
+
+
+def _fit(family: str, x, w, k: int, seed: int, start: Fit | None = None, binned: ProductData | None = None, iterations: int = 100) -> Fit:
+    """A fit of `family` with `k` components (`start`: a fit to start a mixture's EM from)."""
     if family == "product":
-        return fit_product(x, w, k, seed=seed)
+        return fit_binned_product(product_data(x, w) if binned is None else binned, k, seed=seed, start=start)
     covariance = "diagonal" if family.startswith("diagonal") else "full"
     df = STUDENT_DF if family.endswith("-t") else None
-    return fit_mixture(x, w, k, covariance=covariance, df=df, seed=seed, init_means=init_means)
+    init: dict = {}
+    if start is not None and start.parameters is not None:
+        p = start.parameters
+        init = dict(init_means=p["means"], init_covariances=p["covariances"], init_weights=p["weights"])
+    return fit_mixture(x, w, k, covariance=covariance, df=df, seed=seed, iterations=iterations, **init)
 
 
 def _cost(family: str, k: int, d: int) -> int:
@@ -95,8 +113,10 @@ def choose_regeneration(
         mixture_draws: mixtures over all coordinates are fitted to at most this many
             draws (a random subset), and candidates scored on at most this many.
         sizes: for some `Fit.family` labels, a number of components a run has been compiled
-            for already (`Fit.padded`): a candidate of that family with fewer components
-            costs as much as that many, so among them the best scoring one is chosen.
+            for already (`Fit.padded`): a candidate of that family that would be padded to
+            it (`padded_size`) costs as much as that many components, so among those the
+            best scoring one is chosen; and any other candidate must score `RECOMPILE_GAIN`
+            nats better than the best of those to be chosen.
         seed: seed of the split, the subsets and the initialisations.
 
     Returns:
@@ -125,45 +145,71 @@ def choose_regeneration(
     sizes = dict(sizes or {})
 
     def cost(family: str, k: int) -> int:
-        return _cost(family, max(k, int(sizes.get(_fit_name(family), 0))), d)
+        return _cost(family, padded_size(k, sizes.get(_fit_name(family))), d)
 
     candidates: list[Candidate] = []
     fits: dict[tuple[str, int], Fit] = {}
+    binned = {}
+    if "product" in families:  # every training draw, and every draw, binned once (after one sort)
+        order = np.argsort(x, axis=0)
+        kept = (~test)[order]  # (n, d): whether each coordinate's next draw in order is a training draw
+        rank = np.cumsum(~test) - 1  # a draw's index among the training draws
+        train_order = rank[order.T[kept.T].reshape(x.shape[1], -1).T]
+        binned["train"] = product_data(x[~test], w[~test], train_order)
+        binned["all"] = product_data(x, w, order)
     for family in families:
-        on = ~test if family == "product" else train  # products are fitted to every training draw (binned)
-        largest = min(max_components, max(1, int(np.sum(on)) // (4 * d + 4)))
+        on = np.flatnonzero(~test) if family == "product" else train
+        largest = min(max_components, max(1, on.size // (4 * d + 4)))
         base = _base(family)
-        k = 1
+        k, start = 1, None
         if base != family and base in families:  # the Student-t version from the size its Gaussian family liked best
             scored_base = [c for c in candidates if c.family == _fit_name(base)]
             if scored_base:
                 k = max(scored_base, key=lambda c: c.score).num_components
-        best_here = -math.inf
+                start = fits.get((base, k))
+        best_here, gain = -math.inf, 0.0
         while k <= largest and _cost(family, k, d) <= max_cost:
             try:
-                fit = _fit(family, x[on], w[on], k, seed)
+                fit = _fit(family, x[on], w[on], k, seed, start=start, binned=binned.get("train"), iterations=SEARCH_ITERATIONS)
             except (ValueError, np.linalg.LinAlgError):
                 break
+            start = None
             logp = fit.log_prob(x[scored])
             score = float(np.sum(w[scored] * logp) / np.sum(w[scored])) if np.all(np.isfinite(logp)) else -math.inf
             candidates.append(Candidate(fit.family, k, cost(family, k), score))
             fits[family, k] = fit
             if score < best_here + tolerance / 4:  # no longer improving: larger K will not either
                 break
-            best_here = max(best_here, score)
+            gain = max(gain, score - best_here) if math.isfinite(best_here) else 0.0
+            best_here = score
+            ahead = max(c.score for c in candidates)
+            doublings = math.floor(math.log2(largest / k))
+            if k >= 4 and ahead - score > HOPELESS * gain * doublings + tolerance:
+                break  # even gains several times its best so far would leave this family behind
             k *= 2
     if not candidates:
         raise ValueError("no regeneration family could be fitted to these draws")
-    best = max(c.score for c in candidates)
-    chosen = min((c for c in candidates if c.score >= best - tolerance), key=lambda c: (c.cost, -c.score))
+    admissible = candidates
+    free = [c for c in candidates if c.family in sizes and padded_size(c.num_components, sizes[c.family]) == sizes[c.family]]
+    if free:  # a candidate that needs a program compiled anew must be clearly better
+        bar = max(c.score for c in free) + RECOMPILE_GAIN
+        admissible = [c for c in candidates if c in free or c.score >= bar]
+    best = max(c.score for c in admissible)
+    chosen = min((c for c in admissible if c.score >= best - tolerance), key=lambda c: (c.cost, -c.score))
     family = next(f for f in families if _fit_name(f) == chosen.family)
     k = chosen.num_components
-    if family == "product":
-        fit = _fit(family, x, w, k, seed)
-    else:  # all the draws a mixture may use, started from the candidate's components
-        every = _at_most(np.arange(x.shape[0]), mixture_draws, rng)
-        fit = _fit(family, x[every], w[every], k, seed, init_means=fits[family, k].parameters["means"])  # type: ignore[index]
+    # Refitted to all the draws it may use, started from the candidate.
+    every = np.arange(x.shape[0]) if family == "product" else _at_most(np.arange(x.shape[0]), mixture_draws, rng)
+    fit = _fit(family, x[every], w[every], k, seed, start=fits[family, k], binned=binned.get("all"))
     return Choice(fit, tuple(candidates))
+
+
+def padded_size(num_components: int, size: int | None) -> int:
+    """The number of components a fit of `num_components` runs with, given a run compiled for
+    `size` of its family (or `None`): `size` if that is at least `num_components` and at most
+    `PAD_LIMIT` times it, else `num_components`."""
+    k = int(num_components)
+    return int(size) if size is not None and k <= size <= PAD_LIMIT * k else k
 
 
 def _at_most(indices: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:

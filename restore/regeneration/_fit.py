@@ -181,6 +181,8 @@ def fit_mixture(
     iterations: int = 100,
     tolerance: float = 1e-5,
     init_means: np.ndarray | None = None,
+    init_covariances: np.ndarray | None = None,
+    init_weights: np.ndarray | None = None,
 ) -> Fit:
     """Weighted EM for a mixture of `num_components` Gaussian (or Student-t) components.
 
@@ -194,6 +196,9 @@ def fit_mixture(
         iterations: most EM iterations.
         tolerance: stop when the mean log likelihood improves by less than this.
         init_means: optional `(K, d)` starting locations (e.g. the previous fit's).
+        init_covariances: optional `(K, d, d)` starting covariances (scale matrices), with
+            `init_means`.
+        init_weights: optional `(K,)` starting weights, with `init_means`.
     """
     x, w = _prepare(draws, weights)
     df = check_df(df)
@@ -209,8 +214,10 @@ def fit_mixture(
     prior_cov = PRIOR_SHARE * (np.diag(np.diag(overall)) if diagonal else overall)
     means = np.array(init_means, np.float64) if init_means is not None else _seeds(x, w, k, rng)
     k = means.shape[0]
-    mix = np.full(k, 1.0 / k)
-    covs = np.broadcast_to(overall / k ** (2.0 / d), (k, d, d)).copy()
+    mix = np.full(k, 1.0 / k) if init_weights is None else np.asarray(init_weights, np.float64) / np.sum(init_weights)
+    covs = np.broadcast_to(overall / k ** (2.0 / d) if init_covariances is None else init_covariances, (k, d, d)).copy()
+    if diagonal:
+        covs = covs * np.eye(d)
     total = w.sum()
     previous = -np.inf
     xt, x2 = x.T, x**2
@@ -291,12 +298,13 @@ def _mixture_fit(mix, means, covs, df, diagonal: bool) -> Fit:
     return Fit(build, log_prob, family, k, int(cost), dict(weights=mix, means=means, covariances=covs))
 
 
-def _bins(x: np.ndarray, w: np.ndarray, bins: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Each coordinate's draws sorted and gathered into `bins` groups of consecutive values
-    (or one group per draw, when there are no more draws than that): the groups' weights,
-    weighted sums, weighted sums of squares and weighted means, each `(d, m)`."""
+def _bins(x: np.ndarray, w: np.ndarray, bins: int, order: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Each coordinate's draws sorted (`order`, if given: `np.argsort(x, axis=0)`) and gathered
+    into `bins` groups of consecutive values (or one group per draw, when there are no more
+    draws than that): the groups' weights, weighted sums, weighted sums of squares and
+    weighted means, each `(d, m)`."""
     n = x.shape[0]
-    order = np.argsort(x, axis=0)
+    order = np.argsort(x, axis=0) if order is None else order
     xs = np.take_along_axis(x, order, axis=0).T  # (d, n), ascending
     ws = w[order].T
     if n <= bins:
@@ -306,6 +314,32 @@ def _bins(x: np.ndarray, w: np.ndarray, bins: int) -> tuple[np.ndarray, np.ndarr
     total = np.add.reduceat(ws * xs, starts, axis=1)
     squares = np.add.reduceat(ws * xs**2, starts, axis=1)
     return weight, total, squares, total / weight
+
+
+class ProductData(NamedTuple):
+    """Weighted draws as a product fit uses them: each coordinate's draws in groups of
+    consecutive values (`_bins`), each `(d, m)`, with their total weight and variances."""
+
+    weight: np.ndarray
+    first: np.ndarray
+    second: np.ndarray
+    centre: np.ndarray
+    total: float
+    variance: np.ndarray  # (d,)
+
+
+def product_data(draws, weights, order: np.ndarray | None = None) -> ProductData:
+    """The draws binned for `fit_binned_product` (bin once, fit several sizes). `order`:
+    `np.argsort(draws, axis=0)`, if known (the draws must all be finite with positive weights)."""
+    if order is None:
+        x, w = _prepare(draws, weights)
+    else:
+        x = np.asarray(draws, np.float64)
+        w = np.asarray(weights, np.float64)
+        w = w * (w.sum() / np.sum(w**2))
+    d = x.shape[1]
+    variance = np.cov(x.T, aweights=w).reshape(d, d).diagonal() + 1e-300
+    return ProductData(*_bins(x, w, PRODUCT_BINS, order), total=float(w.sum()), variance=variance)
 
 
 @single_threaded
@@ -318,23 +352,31 @@ def fit_product(draws, weights, num_components: int, *, seed: int = 0, iteration
     of a group are those of its weighted mean; the M-step uses the groups' exact weighted
     sums and sums of squares).
     """
-    x, w = _prepare(draws, weights)
-    n, d = x.shape
+    data = product_data(draws, weights)
+    return fit_binned_product(data, num_components, seed=seed, iterations=iterations, tolerance=tolerance)
+
+
+@single_threaded
+def fit_binned_product(
+    data: ProductData, num_components: int, *, seed: int = 0, iterations: int = 100, tolerance: float = 1e-6, start: Fit | None = None
+) -> Fit:
+    """`fit_product` of draws binned by `product_data` (`start`: a product fit of as many
+    components to start the EM from)."""
     k = int(num_components)
     if k < 1:
         raise ValueError(f"num_components must be at least 1, got {num_components!r}")
+    weight, first, second, centre, total, var = data
+    d, m = centre.shape
     rng = np.random.default_rng(seed)
-    total = w.sum()
-    var = np.cov(x.T, aweights=w).reshape(d, d).diagonal() + 1e-300
-    weight, first, second, centre = _bins(x, w, PRODUCT_BINS)  # (d, m) each, in ascending order
-    m = centre.shape[1]
-    # Start at weighted quantiles of each coordinate, with a little jitter.
-    qs = (np.arange(k) + 0.5) / k
-    cw = np.cumsum(weight, axis=1) / total
-    means = np.stack([centre[j, np.minimum(np.searchsorted(cw[j], qs), m - 1)] for j in range(d)])
-    means = means + 1e-3 * np.sqrt(var)[:, None] * rng.standard_normal(means.shape)
-    scales = np.broadcast_to(np.sqrt(var)[:, None] / k, (d, k)).copy()
-    mix = np.full((d, k), 1.0 / k)
+    if start is not None and start.parameters is not None and start.num_components == k:
+        mix, means, scales = (np.array(start.parameters[name]) for name in ("weights", "means", "scales"))
+    else:  # start at weighted quantiles of each coordinate, with a little jitter
+        qs = (np.arange(k) + 0.5) / k
+        cw = np.cumsum(weight, axis=1) / total
+        means = np.stack([centre[j, np.minimum(np.searchsorted(cw[j], qs), m - 1)] for j in range(d)])
+        means = means + 1e-3 * np.sqrt(var)[:, None] * rng.standard_normal(means.shape)
+        scales = np.broadcast_to(np.sqrt(var)[:, None] / k, (d, k)).copy()
+        mix = np.full((d, k), 1.0 / k)
     prior_var = PRIOR_SHARE * var[:, None]
     previous = -np.inf
     c = centre[:, None, :]  # (d, 1, m): coordinates, components, groups
