@@ -158,8 +158,9 @@ def as_scale(value: Any, name: str) -> Array:
         raise ValueError(f"{name} must be a scalar or a vector of shape (d,), got shape {arr.shape}")
     if is_concrete(arr):  # checked on the host (an eager device check compiles programs)
         host = np.asarray(arr)
-        if not bool(np.all(np.isfinite(host) & (host > 0))):
-            raise ValueError(f"{name} must be positive and finite, got {value!r}")
+        # XLA flushes subnormal numbers to zero, so a step size below the smallest normal one is zero
+        if not bool(np.all(np.isfinite(host) & (host >= np.finfo(host.dtype).tiny))):
+            raise ValueError(f"{name} must be positive and finite (at least {np.finfo(host.dtype).tiny:.3g}), got {value!r}")
     return arr
 
 

@@ -114,6 +114,7 @@ def positive_integer(value, minimum: int) -> bool:
 @given(kind=st.sampled_from(["RandomWalk", "MALA", "HMC"]), value=numbers, dim=st.sampled_from([1, 2, 3]))
 @example(kind="RandomWalk", value=[0.5, 1.0], dim=3)  # a vector of the wrong length
 @example(kind="HMC", value=[0.5, 1.0], dim=2)  # HMC's step size is a scalar
+@example(kind="RandomWalk", value=5e-324, dim=1)  # subnormal: zero to XLA, whatever the host made of it
 def test_kernel_step_sizes_are_checked(kind, value, dim):
     name = {"RandomWalk": "scale", "MALA": "step_size", "HMC": "step_size"}[kind]
     arr = as_real_array(value)
