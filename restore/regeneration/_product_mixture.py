@@ -65,7 +65,14 @@ class ProductMixture(AbstractRegeneration):
     def sample(self, key: PRNGKeyArray, shape: tuple[int, ...] = ()) -> Float[Array, "*shape d"]:
         shape = check_shape(shape)
         k_idx, k_z = jax.random.split(key)
-        idx = jax.random.categorical(k_idx, self.log_weights, shape=shape + (self.dim,))  # (*shape, d)
+        dtype = self.means.dtype
+        # Each coordinate's component by inverting its cumulative weights at one uniform (a
+        # categorical draw would take one Gumbel number per component), normalised by the
+        # total, so that the last entry is exactly 1 > u.
+        cumulative = jnp.cumsum(jnp.exp(self.log_weights), axis=1)
+        cumulative = cumulative / cumulative[:, -1:]
+        u = jax.random.uniform(k_idx, shape + (self.dim,), dtype=dtype)
+        idx = jnp.sum(u[..., None] >= cumulative[:, :-1], axis=-1)  # (*shape, d)
         coords = jnp.arange(self.dim)
-        z = jax.random.normal(k_z, shape + (self.dim,), dtype=self.means.dtype)
+        z = jax.random.normal(k_z, shape + (self.dim,), dtype=dtype)
         return self.means[coords, idx] + self.scales[coords, idx] * z
