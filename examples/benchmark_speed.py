@@ -138,7 +138,7 @@ def restore_sample_budget(sampler, lanes: int, steps: int) -> Contender:
 
 def restore_sample_defaults(sampler, lanes: int, steps: int) -> Contender:
     """A whole repeated `restore.sample` call with its default arguments (50 chunks, thinned draws
-    kept, tour records merged on the host), as a user makes it: pilot, set-up and run included."""
+    kept, a progress report per chunk), as a user makes it: pilot, set-up and run included."""
     kwargs = dict(num_lanes=lanes, num_steps=steps, progress=False)
 
     def once(i: int) -> float:
