@@ -196,9 +196,9 @@ def drive(
         )
 
     def wait_for_chunk(may_save: bool = True) -> None:
-        """Wait for the chunk in flight and commit it (it stays in flight if the wait is interrupted)."""
+        """Wait for the oldest chunk in flight and commit it (it stays in flight if the wait is interrupted)."""
         steps = waiting[0]()
-        waiting.pop()
+        waiting.pop(0)
         finish_chunk(steps, may_save)
 
     with meter.shown():
@@ -216,16 +216,16 @@ def drive(
                         n = min(n, max(1, math.ceil(min(budget.seconds - elapsed(), slice_) / per_step)))
                 if waiting and (save_due() or dispatched >= mark):  # save the chunk in flight before the next one takes its buffers
                     wait_for_chunk()
-                with _interrupt_deferred():  # a dispatch is not cut in half
+                with _interrupt_deferred():  # a dispatch is not cut in half, nor lost before it is queued
                     outcome = advance(n)
+                    if callable(outcome):
+                        waiting.append(outcome)
                 if callable(outcome):
                     dispatched += n
                     if budget.seconds is None:  # chunk sizes are known ahead: keep one chunk in flight
-                        if waiting:
-                            wait_for_chunk(may_save=False)  # its buffers went to the chunk just dispatched
-                        waiting.append(outcome)
+                        if len(waiting) > 1:
+                            wait_for_chunk(may_save=False)  # the older one: its buffers went to the chunk just dispatched
                         continue
-                    waiting.append(outcome)
                     before = done
                     wait_for_chunk()
                     dispatched += done - before - n
@@ -236,7 +236,7 @@ def drive(
                 wait_for_chunk()
         except KeyboardInterrupt:
             interrupted = True
-            while waiting:  # the chunk in flight holds the run (the committed one gave it its buffers): wait for it
+            while waiting:  # the chunks in flight hold the run (the committed one gave them its buffers): wait for them, in order
                 try:
                     wait_for_chunk(may_save=False)
                 except KeyboardInterrupt:

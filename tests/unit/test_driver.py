@@ -59,3 +59,50 @@ def test_a_time_budget_measures_one_step_first_and_stops_close_to_the_budget():
 def test_a_budget_needs_steps_or_seconds():
     with pytest.raises(ValueError, match="steps, seconds"):
         Budget()
+
+
+class Donating:
+    """Pipelined chunks: each dispatch takes the buffers of the newest carry (as a donated
+    carry does) and returns a function that waits for the chunk and commits it. The wait
+    for chunk `interrupt_wait` is interrupted once (Ctrl-C while the next chunk is in flight)."""
+
+    class Carry:
+        def __init__(self, steps):
+            self.steps, self.deleted = steps, False
+
+    def __init__(self, interrupt_wait=None):
+        self.newest = self.committed = self.Carry(0)
+        self.interrupt_wait, self.dispatched, self.saves = interrupt_wait, 0, []
+
+    def __call__(self, n):
+        index, out = self.dispatched, self.Carry(self.newest.steps + n)
+        self.newest.deleted, self.newest, self.dispatched = True, out, self.dispatched + 1
+
+        def wait():
+            if index == self.interrupt_wait:
+                self.interrupt_wait = None
+                raise KeyboardInterrupt
+            self.committed = out
+            return n
+
+        return wait
+
+    def save(self, steps, _elapsed):
+        assert not self.committed.deleted and self.committed.steps == steps, "a checkpoint of buffers given away"
+        self.saves.append(steps)
+
+
+def test_pipelined_chunks_commit_in_order_and_save_at_marks():
+    chunks = Donating()
+    outcome = drive(chunks, budget=Budget(steps=50), chunk=10, save=chunks.save, save_every_steps=20)
+    assert outcome.steps == 50 and chunks.saves == [20, 40, 50] and chunks.committed.steps == 50
+
+
+@pytest.mark.parametrize("interrupt_wait", [0, 2])
+def test_ctrl_c_while_a_chunk_is_in_flight_commits_every_dispatched_chunk(interrupt_wait):
+    """Interrupted while waiting for a chunk whose carry the next chunk already took: both
+    chunks are waited for, in order, and the checkpoint holds the newest, live one."""
+    chunks = Donating(interrupt_wait)
+    outcome = drive(chunks, budget=Budget(steps=100), chunk=10, save=chunks.save)
+    assert outcome.interrupted and outcome.steps == 10 * (interrupt_wait + 2) == chunks.committed.steps
+    assert chunks.saves == [outcome.steps]
