@@ -196,10 +196,13 @@ def drive(
         )
 
     def wait_for_chunk(may_save: bool = True) -> None:
-        """Wait for the oldest chunk in flight and commit it (it stays in flight if the wait is interrupted)."""
-        steps = waiting[0]()
-        waiting.pop(0)
-        finish_chunk(steps, may_save)
+        """Wait for the oldest chunk in flight and commit it. Ctrl-C takes effect once it is
+        committed and counted (the run and the steps done always agree); the chunk stays in
+        flight if its wait raises."""
+        with _interrupt_deferred():
+            steps = waiting[0]()
+            waiting.pop(0)
+            finish_chunk(steps, may_save)
 
     with meter.shown():
         try:
@@ -216,10 +219,13 @@ def drive(
                         n = min(n, max(1, math.ceil(min(budget.seconds - elapsed(), slice_) / per_step)))
                 if waiting and (save_due() or dispatched >= mark):  # save the chunk in flight before the next one takes its buffers
                     wait_for_chunk()
-                with _interrupt_deferred():  # a dispatch is not cut in half, nor lost before it is queued
+                with _interrupt_deferred():  # a dispatch is not cut in half, nor lost before it is queued or counted
                     outcome = advance(n)
                     if callable(outcome):
                         waiting.append(outcome)
+                    else:
+                        dispatched += outcome
+                        finish_chunk(outcome)
                 if callable(outcome):
                     dispatched += n
                     if budget.seconds is None:  # chunk sizes are known ahead: keep one chunk in flight
@@ -229,9 +235,6 @@ def drive(
                     before = done
                     wait_for_chunk()
                     dispatched += done - before - n
-                    continue
-                dispatched += outcome
-                finish_chunk(outcome)
             while waiting:
                 wait_for_chunk()
         except KeyboardInterrupt:
