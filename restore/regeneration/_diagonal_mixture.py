@@ -15,6 +15,7 @@ from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 from .._threefry import loggamma
 from .._validation import as_float_array, check_point, check_shape
 from ._base import AbstractRegeneration
+from ._utils import component_indices
 
 
 def _positive_weights(weights: ArrayLike, shape: tuple[int, ...], name: str) -> np.ndarray:
@@ -112,7 +113,7 @@ class DiagonalMixture(AbstractRegeneration):
     def sample(self, key: PRNGKeyArray, shape: tuple[int, ...] = ()) -> Float[Array, "*shape d"]:
         shape = check_shape(shape)
         k_idx, k_z, k_w = jax.random.split(key, 3)
-        idx = jax.random.categorical(k_idx, self.log_weights, shape=shape)
+        idx = component_indices(k_idx, self.log_weights, shape, self.means.dtype)
         z = jax.random.normal(k_z, shape + (self.dim,), dtype=self.means.dtype)
         if self.df is not None:
             z = z * jnp.exp(-0.5 * log_chi2_over_df(k_w, self.df, shape, self.means.dtype))[..., None]

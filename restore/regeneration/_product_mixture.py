@@ -13,6 +13,7 @@ from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 from .._validation import as_float_array, check_point, check_shape
 from ._base import AbstractRegeneration
 from ._diagonal_mixture import _positive_weights
+from ._utils import component_indices
 
 
 @final
@@ -66,13 +67,7 @@ class ProductMixture(AbstractRegeneration):
         shape = check_shape(shape)
         k_idx, k_z = jax.random.split(key)
         dtype = self.means.dtype
-        # Each coordinate's component by inverting its cumulative weights at one uniform (a
-        # categorical draw would take one Gumbel number per component), normalised by the
-        # total, so that the last entry is exactly 1 > u.
-        cumulative = jnp.cumsum(jnp.exp(self.log_weights), axis=1)
-        cumulative = cumulative / cumulative[:, -1:]
-        u = jax.random.uniform(k_idx, shape + (self.dim,), dtype=dtype)
-        idx = jnp.sum(u[..., None] >= cumulative[:, :-1], axis=-1)  # (*shape, d)
+        idx = component_indices(k_idx, self.log_weights, shape, dtype)  # (*shape, d): each coordinate's component
         coords = jnp.arange(self.dim)
         z = jax.random.normal(k_z, shape + (self.dim,), dtype=dtype)
         return self.means[coords, idx] + self.scales[coords, idx] * z

@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import math
 
+import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array, ArrayLike, Float, Int, PRNGKeyArray
 
 from .._validation import as_float_array, is_concrete
 
@@ -56,3 +57,15 @@ def scale_tril(cov: ArrayLike, dim: int, name: str) -> Float[Array, "d d"]:
     if not (np.all(np.isfinite(tril)) and np.all(np.diag(tril).astype(dtype) > 0)):
         raise ValueError(f"`{name}` is too ill-conditioned to be represented in {dtype}.")
     return jnp.asarray(tril, dtype)
+
+
+def component_indices(key: PRNGKeyArray, log_weights: Float[Array, "*c K"], shape: tuple[int, ...], dtype) -> Int[Array, "*shape *c"]:
+    """Mixture components drawn with the weights `exp(log_weights)` (normalised along the
+    last axis), shape `shape + log_weights.shape[:-1]`: one uniform number per index,
+    inverting the cumulative weights (a categorical draw takes a Gumbel number per
+    component). Exact; a component of weight zero is never drawn."""
+    weights = jnp.exp(log_weights - jnp.max(log_weights, axis=-1, keepdims=True))
+    cumulative = jnp.cumsum(weights, axis=-1)
+    cumulative = cumulative / cumulative[..., -1:]  # the last entry, and any after it of weight zero, is exactly 1 > u
+    u = jax.random.uniform(key, shape + log_weights.shape[:-1], dtype=dtype)
+    return jnp.sum(u[..., None] >= cumulative[..., :-1], axis=-1)

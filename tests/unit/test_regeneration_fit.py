@@ -157,3 +157,23 @@ def test_fit_densities_are_normalised():
         mass = np.exp(fit.log_prob(points)).sum() * (grid[1] - grid[0]) ** 2
         assert mass == pytest.approx(1.0, abs=0.01), fit.family
         assert math.isfinite(fit.cost) and fit.cost > 0
+
+
+def test_component_indices_follow_the_weights_and_never_draw_a_zero_weight():
+    """Mixtures draw their components by inverting the cumulative weights: per row of
+    weights, the counts pass a chi-square test against the weights (Bonferroni over rows),
+    and padded components of weight zero, between and after the others, never come up."""
+    from restore.regeneration._utils import component_indices
+
+    weights = np.array([[0.5, 0.0, 0.3, 0.2, 0.0], [1e-3, 0.999, 0.0, 0.0, 0.0], [0.2, 0.2, 0.2, 0.2, 0.2]])
+    with np.errstate(divide="ignore"):
+        log_weights = jnp.asarray(np.log(weights) - 40.0)  # unnormalised, and small: normalised inside
+    idx = np.asarray(component_indices(KEY, log_weights, (50_000,), jnp.float64))
+    assert idx.shape == (50_000, 3)
+    for row in range(3):
+        counts = np.bincount(idx[:, row], minlength=5)
+        assert np.all(counts[weights[row] == 0] == 0)
+        used = weights[row] > 0
+        assert stats.chisquare(counts[used], 50_000 * weights[row, used]).pvalue > 1e-3 / 3
+    flat = np.asarray(component_indices(KEY, jnp.log(jnp.asarray([0.25, 0.75])), (40_000,), jnp.float64))
+    assert flat.shape == (40_000,) and abs(np.mean(flat) - 0.75) < 0.01
