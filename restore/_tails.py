@@ -31,9 +31,9 @@ import math
 
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, Bool, Float
 
-from ._exceedances import Exceedances, Largest, init_exceedances, largest, merge, offer
+from ._exceedances import Exceedances, Largest, init_exceedances, largest, merge
 from ._exceedances import select_lanes as select_rows
 from ._pareto import pareto_k, pareto_k_log, tail_length
 
@@ -59,15 +59,10 @@ def _power_of_two_at_most(n: float) -> int:
 
 def tail_rows(num_lanes: int, size: int) -> int:
     """Rows of the buffer: a power of two near `ROWS_PER_LANE` per lane, within the memory cap, and
-    at least four per lane (room for every lane's row of a step after a compaction: `_exceedances.offer`)."""
+    at least four per lane (room for every lane's row of a step and a batch after a compaction: `_run_loop._events`)."""
     power = lambda n: 1 << max(int(n - 1).bit_length(), 1)
     wanted = min(max(power(ROWS_PER_LANE * num_lanes), MIN_ROWS), _power_of_two_at_most(MAX_ELEMENTS / (size + 3)))
     return int(max(wanted, power(4 * num_lanes)))
-
-
-def offer_batch(num_lanes: int) -> int:
-    """Rows gathered per insertion: about the tours a step ends (and at most every lane's)."""
-    return int(min(num_lanes, max(32, num_lanes // 8)))
 
 
 def init_tails(rows: int, size: int, dtype) -> TourTailBuffers:
@@ -96,22 +91,6 @@ def wanted_tours(
     bound = jnp.exp(tails.threshold[:-1])
     tour = (duration > bound[0]) | jnp.any(jnp.abs(integral) > bound[1:], axis=1)
     return (ended & tour) | (drawn & (log_importance_weight > tails.threshold[-1]))
-
-
-def offer_tours(
-    tails: TourTailBuffers,
-    lane: Int[Array, " N"],
-    duration: Float[Array, " N"],
-    integral: Float[Array, "N m"],
-    ended: Bool[Array, " N"],
-    log_importance_weight: Float[Array, " N"],
-    drawn: Bool[Array, " N"],
-) -> TourTailBuffers:
-    """The buffer after the tours that `ended` and the starts `drawn` at `N` lanes (rows above a
-    threshold are appended `offer_batch(N)` at a time). The run loop does the same inside its
-    batches of tour ends (`_run_loop`)."""
-    rows = tail_rows_of(duration, integral, ended, log_importance_weight, drawn)
-    return offer(tails, rows, lane, ended | drawn, SCORING, offer_batch(lane.shape[0]))
 
 
 def tour_tails(buffers: TourTailBuffers) -> TourTails:
