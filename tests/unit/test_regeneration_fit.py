@@ -177,3 +177,25 @@ def test_component_indices_follow_the_weights_and_never_draw_a_zero_weight():
         assert stats.chisquare(counts[used], 50_000 * weights[row, used]).pvalue > 1e-3 / 3
     flat = np.asarray(component_indices(KEY, jnp.log(jnp.asarray([0.25, 0.75])), (40_000,), jnp.float64))
     assert flat.shape == (40_000,) and abs(np.mean(flat) - 0.75) < 0.01
+
+
+def test_padded_fits_have_the_same_density_and_draws():
+    """`Fit.padded` (autosample runs every fit of a family on one compiled program): the
+    padded distribution has arrays of the larger size and the same log density; products and
+    diagonal mixtures draw the same points from the same key (their component choice is the
+    same cumulative-weight inversion); padding to fewer components is refused."""
+    from restore.regeneration._choose import padded_size
+
+    x, w = _weighted_bimodal(3000)
+    y = jnp.asarray(x[:40])
+    fits = (fit_product(x, w, 2), fit_mixture(x, w, 2, covariance="diagonal", df=5.0), fit_mixture(x, w, 2))
+    for fit in fits:
+        plain, padded = fit.distribution, fit.padded(8)
+        assert padded.log_weights.shape[-1] == 8 and plain.log_weights.shape[-1] == 2, fit.family
+        np.testing.assert_allclose(jax.vmap(padded.log_prob)(y), jax.vmap(plain.log_prob)(y), rtol=1e-12, err_msg=fit.family)
+        with pytest.raises(ValueError, match="cannot pad"):
+            fit.padded(1)
+    for fit in fits[:2]:
+        np.testing.assert_array_equal(fit.padded(8).sample(KEY, (500,)), fit.distribution.sample(KEY, (500,)), err_msg=fit.family)
+    # a fit runs on a program compiled for `size` when that is enough and not over PAD_LIMIT times its own
+    assert padded_size(3, None) == 3 and padded_size(3, 8) == 8 and padded_size(3, 2) == 3 and padded_size(2, 16) == 2
