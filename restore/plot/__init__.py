@@ -1,8 +1,10 @@
 """Plots of a run: tour lengths and their tail, running estimates, kill rate and acceptance, mode weights.
 
-Each function draws on a matplotlib `Axes` (a new figure when none is given) and returns
-it; the numbers behind the tour-length and running-estimate plots are available on their
-own (`tour_tail`, `running_estimate_values`). Needs matplotlib (`pip install
+Each function takes what `restore.sample` or `restore.autosample` returns, names
+observables as `result.estimate` does (or takes a function of the draws), draws on a
+matplotlib `Axes` (a new figure when none is given) and returns it; the numbers behind
+the tour-length and running-estimate plots are available on their own (`tour_tail`,
+`running_estimate_values`). Needs matplotlib (`pip install
 'restore-mcmc[plot]'`); `import restore` does not import it.
 """
 

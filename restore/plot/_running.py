@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
 
 from ._axes import axes_or_new
+from ._source import Observable, draw_values, run_of
 
 
 class Running(NamedTuple):
@@ -24,23 +24,25 @@ class Running(NamedTuple):
     standard_error: np.ndarray
 
 
-def running_estimate_values(result, fn: Callable[[np.ndarray], np.ndarray]) -> Running:
-    """`E[fn(x)]` from the stored draws up to each slot, with standard errors over lanes.
+def running_estimate_values(result, observable: Observable) -> Running:
+    """`E[f(x)]` from the stored draws up to each slot, with standard errors over lanes.
 
-    The estimate after slot `s` is the weighted average of `fn` over every lane's stored
+    The estimate after slot `s` is the weighted average of `f` over every lane's stored
     draws `0..s` (weights: the draws' holding times), and its standard error treats the
     lanes as independent replicates (ratio estimator over lanes), as
     `result.estimate_draws` does at the last slot. Thinned draws make it a little noisier
     than the run's streamed estimates, which use every step.
 
     Arguments:
-        result: a `SampleResult` (or `AutoResult`) with stored draws.
-        fn: maps states `(..., d)` to values `(...)` or `(..., k)`.
+        result: a `SampleResult` or an `AutoResult` with stored draws.
+        observable: the name of an observable of the run (as in `result.estimate`, e.g.
+            `"x"` or a NumPyro site passed through `target.observables`), or a function
+            mapping states `(..., d)` to values `(...)` or `(..., k)`.
     """
-    result = getattr(result, "result", result)
+    result = run_of(result)
     if result.draws.shape[0] == 0:
         raise ValueError("no draws were stored: pass max_draws > 0 (or thin) to restore.sample")
-    values = np.asarray(fn(result.draws), np.float64)
+    values = draw_values(result, observable)
     if values.shape[:2] != result.draws.shape[:2]:
         raise ValueError(f"fn must keep the leading (draw, lane) axes {result.draws.shape[:2]}, got {values.shape}")
     w = np.asarray(result.draw_weights, np.float64)
@@ -59,30 +61,50 @@ def running_estimate_values(result, fn: Callable[[np.ndarray], np.ndarray]) -> R
     return Running(step, value, se)
 
 
-def running_estimate(result, fn: Callable[[np.ndarray], np.ndarray], truth=None, label: str = "estimate", ax=None):
-    """The running estimate of `E[fn(x)]` against the steps, with its 95% band (and the truth).
+def running_estimate(result, observable: Observable, truth=None, label: str | None = None, ax=None):
+    """The running estimate of `E[f(x)]` against the steps, with its 95% band (and the truth).
 
-    See `running_estimate_values` for how it is computed. `fn` must return one number per
-    state (select a component for vector observables).
+    See `running_estimate_values` for how it is computed. A vector-valued observable draws
+    one line per component, labelled `label[i]`.
 
     Arguments:
-        result: a `SampleResult` (or `AutoResult`) with stored draws.
-        fn: maps states `(..., d)` to values `(...)`.
-        truth: an optional true value, drawn as a horizontal line.
-        label: the name of the quantity.
+        result: a `SampleResult` or an `AutoResult` with stored draws.
+        observable: the name of an observable of the run (e.g. `"x"`, or a NumPyro site
+            passed through `target.observables`), or a function of the states `(..., d)`.
+        truth: an optional true value (one per component), drawn as a dashed line.
+        label: the name of the quantity (default: the observable's name, else "estimate").
         ax: a matplotlib `Axes` (default: a new figure).
 
     Returns:
         The `Axes`.
     """
-    running = running_estimate_values(result, fn)
-    if running.value.ndim != 1:
-        raise ValueError(f"fn must return one number per state for a running plot, got values of shape {running.value.shape[1:]}")
+    running = running_estimate_values(result, observable)
+    if label is None:
+        label = observable if isinstance(observable, str) else "estimate"
+    shape = running.value.shape[1:]
+    value = running.value.reshape(len(running.step), -1)
+    band = 1.96 * running.standard_error.reshape(value.shape)
+    truths = None if truth is None else np.broadcast_to(np.asarray(truth, np.float64), shape).reshape(-1)
     ax = axes_or_new(ax)
-    ax.fill_between(running.step, running.value - 1.96 * running.standard_error, running.value + 1.96 * running.standard_error, color="C0", alpha=0.25, label="95% band")
-    ax.plot(running.step, running.value, color="C0", label=label)
-    if truth is not None:
-        ax.axhline(float(truth), color="k", linestyle="--", linewidth=1, label="truth")
+    for j, index in enumerate(np.ndindex(shape)):
+        color, name = f"C{j % 10}", label + ("" if not index else "[" + ", ".join(map(str, index)) + "]")
+        ax.fill_between(
+            running.step,
+            value[:, j] - band[:, j],
+            value[:, j] + band[:, j],
+            color=color,
+            alpha=0.25,
+            label="95% band" if j == 0 else None,
+        )
+        ax.plot(running.step, value[:, j], color=color, label=name)
+        if truths is not None:
+            ax.axhline(
+                truths[j],
+                color="k" if len(truths) == 1 else color,
+                linestyle="--",
+                linewidth=1,
+                label="truth" if j == 0 else None,
+            )
     ax.set(xlabel="steps per lane", ylabel=label, title=f"running estimate of {label}")
     ax.legend(fontsize="small")
     return ax

@@ -11,6 +11,10 @@ from .._accumulators import HISTOGRAM_BINS, HISTOGRAM_RANGE
 from .._pareto import gpd_fit, tail_length
 from .._tails import longest_durations
 from ._axes import axes_or_new
+from ._source import run_of
+
+#: Bins per decade of the run's tour-duration histogram.
+BINS_PER_DECADE = round(HISTOGRAM_BINS / (HISTOGRAM_RANGE[1] - HISTOGRAM_RANGE[0]))
 
 
 class TourTail(NamedTuple):
@@ -52,8 +56,10 @@ def tour_tail(result) -> TourTail:
 
     The bulk comes from the run's log-binned histogram of complete tour durations, the
     tail from the run's tail buffer (`result.tails`), which holds the run's longest
-    tours exactly; the fit is the one behind `k_hat` (`restore._pareto`).
+    tours exactly; the fit is the one behind `k_hat` (`restore._pareto`). `result` is a
+    `SampleResult` or an `AutoResult` (its final run).
     """
+    result = run_of(result)
     if not getattr(result, "has_tours", False) or result.tails is None:
         raise ValueError(f"{result.sampler_name} has no tours to plot")
     counts = np.asarray(result.histogram[0], np.float64)
@@ -74,6 +80,17 @@ def tour_tail(result) -> TourTail:
     return TourTail(n, edges, survival, largest, threshold, float(k_hat), float(sigma), mean)
 
 
+def duration_limits(tail: TourTail) -> tuple[float, float]:
+    """The x-axis of `tour_lengths`: from half a decade before the survival function starts
+    to fall (its first 1%; tours that last no time, e.g. started where the target is zero,
+    make a plateau below 1) to twice the longest tour."""
+    keep = tail.survival > 0
+    falling = np.flatnonzero(tail.survival < 0.99 * tail.survival[0])
+    left = tail.edges[max(int(falling[0]) - BINS_PER_DECADE // 2, 0)] if falling.size else tail.edges[0]
+    right = 2.0 * (tail.largest[0] if tail.largest.size else tail.edges[keep][-1])
+    return float(left), float(right)
+
+
 def tour_lengths(result, ax=None):
     """Survival function of the tour durations on log-log axes, with the tail fit and `k_hat`.
 
@@ -81,7 +98,7 @@ def tour_lengths(result, ax=None):
     these axes is a power law, whose shape `k_hat` at or above 1/2 means infinite variance.
 
     Arguments:
-        result: a `SampleResult` of a Restore sampler.
+        result: a `SampleResult` of a Restore sampler, or an `AutoResult`.
         ax: a matplotlib `Axes` to draw on (default: a new figure).
 
     Returns:
@@ -90,19 +107,34 @@ def tour_lengths(result, ax=None):
     tail = tour_tail(result)
     ax = axes_or_new(ax)
     keep = tail.survival > 0
-    # From a decade before the first tenth of a percent of tours end, to past the longest tour
-    left = tail.edges[max(int(np.argmax(tail.survival < 0.999)) - 10, 0)]
-    right = 2.0 * (tail.largest[0] if tail.largest.size else tail.edges[keep][-1])
+    left, right = duration_limits(tail)
     ax.step(tail.edges[keep], tail.survival[keep], where="post", color="C0", label="all tours (histogram)")
     ranks = np.arange(1, tail.largest.size + 1) / tail.num_tours
     ax.plot(tail.largest, ranks, ".", color="C0", markersize=3, label="longest tours (exact)")
     grid = np.logspace(np.log10(left), np.log10(right), 200)
-    ax.plot(grid, np.exp(-grid / tail.mean_duration), "--", color="grey", label=f"exponential, mean {tail.mean_duration:.3g}")
+    ax.plot(
+        grid,
+        np.exp(-grid / tail.mean_duration),
+        "--",
+        color="grey",
+        label=f"exponential, mean {tail.mean_duration:.3g}",
+    )
     if math.isfinite(tail.threshold):
         above = grid[grid >= tail.threshold]
         ax.plot(above, tail.fitted_survival(above), color="C3", label=f"Pareto tail fit, k_hat = {tail.k_hat:.2f}")
-    ax.set(xscale="log", yscale="log", xlabel="tour duration", ylabel="share of tours longer", xlim=(left, right), ylim=(0.5 / tail.num_tours, 1.5))
-    verdict = "" if not math.isfinite(tail.k_hat) else (" (heavy: error bars unreliable)" if tail.k_hat >= 0.5 else " (light)")
+    ax.set(
+        xscale="log",
+        yscale="log",
+        xlabel="tour duration",
+        ylabel="share of tours longer",
+        xlim=(left, right),
+        ylim=(0.5 / tail.num_tours, 1.5),
+    )
+    verdict = (
+        ""
+        if not math.isfinite(tail.k_hat)
+        else (" (heavy: error bars unreliable)" if tail.k_hat >= 0.5 else " (light)")
+    )
     ax.set_title(f"{tail.num_tours:,} tours, tail k_hat = {tail.k_hat:.2f}{verdict}")
     ax.legend(fontsize="small")
     return ax

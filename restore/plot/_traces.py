@@ -8,6 +8,7 @@ import warnings
 import numpy as np
 
 from ._axes import axes_or_new
+from ._source import run_of
 
 
 def traces(result, axes=None):
@@ -20,13 +21,13 @@ def traces(result, axes=None):
     at no cost per step.
 
     Arguments:
-        result: a `SampleResult` (or `AutoResult`).
+        result: a `SampleResult` or an `AutoResult` (its final run).
         axes: two matplotlib `Axes` (default: a new figure with two panels).
 
     Returns:
         The two `Axes`.
     """
-    result = getattr(result, "result", result)
+    result = run_of(result)
     trace = getattr(result, "trace", None)
     if trace is None:
         raise ValueError("the result has no per-chunk trace (merged from parts with other chunks, or made by hand)")
