@@ -8,17 +8,22 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from .render._methods import LANES, METHOD_LANES, P_LARGE, TOUR_LENGTH, default_lanes
+from targets.mitsuba import SCENES
 
-app = typer.Typer(help="Restore samplers in JAX: jump Restore, baselines and checks.", no_args_is_help=True, add_completion=False)
+from .render._methods import LANES, METHOD_LANES, METHODS, P_LARGE, TOUR_LENGTH, default_lanes
+
+app = typer.Typer(
+    help="Restore samplers in JAX: jump Restore, baselines and checks.", no_args_is_help=True, add_completion=False
+)
 console = Console()
 
 
 @app.callback()
 def main(
     cache: bool = typer.Option(
-        True, help="Keep compiled programs on disk ($JAX_COMPILATION_CACHE_DIR, else ~/.cache/restore/xla), so that a "
-        "second run with the same settings loads them instead of compiling again."
+        True,
+        help="Keep compiled programs on disk ($JAX_COMPILATION_CACHE_DIR, else ~/.cache/restore/xla), so that a "
+        "second run with the same settings loads them instead of compiling again.",
     ),
 ) -> None:
     """Restore samplers in JAX."""
@@ -46,7 +51,9 @@ def demo(
     dim: int = typer.Option(10, min=1, help="Dimension of the Gaussian mixture."),
     lanes: int = typer.Option(512, min=2, help="Parallel lanes of each sampler."),
     steps: int = typer.Option(1500, min=10, help="Steps per lane (one density evaluation each)."),
-    tour_length: float = typer.Option(10.0, min=1e-6, help="Mean tour duration T = 1/c; MH large-step probability is 1/T."),
+    tour_length: float = typer.Option(
+        10.0, min=1e-6, help="Mean tour duration T = 1/c; MH large-step probability is 1/T."
+    ),
     seed: int = typer.Option(0, help="Random seed."),
     out: Path = typer.Option(Path("restore-demo.png"), help="Where to write the plot."),
     progress: bool = typer.Option(True, help="Show progress bars."),
@@ -61,7 +68,9 @@ def demo(
 
     console.print(f"[bold]Target:[/] {dim}-d mixture of 3 well-separated Gaussians, weights 1/6, 2/6, 3/6")
     outcome = run_demo(dim=dim, num_lanes=lanes, num_steps=steps, tour_length=tour_length, seed=seed, progress=progress)
-    console.print(f"Regeneration: Student-t Laplace mixture with equal weights at {outcome.num_modes_found} modes found by optimistix")
+    console.print(
+        f"Regeneration: Student-t Laplace mixture with equal weights at {outcome.num_modes_found} modes found by optimistix"
+    )
 
     table = Table(title=f"Mode weights, {outcome.evaluations:,} density evaluations per sampler")
     table.add_column("mode")
@@ -81,7 +90,9 @@ def demo(
         )
     rmse = lambda est: float(((est.value - outcome.truth) ** 2).mean() ** 0.5)  # noqa: E731
     table.add_row("RMSE", "", f"{rmse(outcome.restore):.4f}", "", f"{rmse(outcome.mh):.4f}", "", end_section=True)
-    table.add_row("wall time (with compilation)", "", f"{outcome.restore_seconds:.1f} s", "", f"{outcome.mh_seconds:.1f} s", "")
+    table.add_row(
+        "wall time (with compilation)", "", f"{outcome.restore_seconds:.1f} s", "", f"{outcome.mh_seconds:.1f} s", ""
+    )
     console.print(table)
     stats = outcome.restore_result.tour_statistics()  # type: ignore[attr-defined]
     console.print(
@@ -127,15 +138,25 @@ def _lanes(text: str) -> dict[str, int]:
 
 @app.command()
 def bench(
-    quick: bool = typer.Option(False, "--quick", help="Small subset (2-d and 10-d mixtures; jump Restore RW, MH RW, emcee stretch): a few minutes."),
-    medium: bool = typer.Option(False, "--medium", help="Every problem and sampler of the full mode with the quick budgets and 2 seeds."),
+    quick: bool = typer.Option(
+        False,
+        "--quick",
+        help="Small subset (2-d and 10-d mixtures; jump Restore RW, MH RW, emcee stretch): a few minutes.",
+    ),
+    medium: bool = typer.Option(
+        False, "--medium", help="Every problem and sampler of the full mode with the quick budgets and 2 seeds."
+    ),
     out: Path = typer.Option(Path("bench-results"), help="Folder for results.csv, results.md and the plots."),
     seeds: int | None = typer.Option(None, min=1, help="Number of seeds (default: 2 quick, 3 full)."),
     problems: str | None = typer.Option(None, help="Comma-separated problems to run (default: all of the mode)."),
-    samplers: str | None = typer.Option(None, help="Comma-separated sampler-name prefixes to keep, e.g. 'restore-rw,mh-rw,emcee'."),
+    samplers: str | None = typer.Option(
+        None, help="Comma-separated sampler-name prefixes to keep, e.g. 'restore-rw,mh-rw,emcee'."
+    ),
     progress: bool = typer.Option(True, help="Show a progress bar over the runs (without it: one line per run)."),
     evidence: bool = typer.Option(
-        False, "--evidence", help="The evidence benchmark instead: log Z of Restore, tempered SMC and nested sampling (evidence.csv, evidence.md)."
+        False,
+        "--evidence",
+        help="The evidence benchmark instead: log Z of Restore, tempered SMC and nested sampling (evidence.csv, evidence.md).",
     ),
 ) -> None:
     """Jump Restore against the MH baseline, emcee and BlackJAX, at equal evaluations and equal wall time."""
@@ -154,7 +175,11 @@ def bench(
         _evidence(quick, out, seeds, problems, samplers, progress)
         return
     config = SuiteConfig.quick() if quick else SuiteConfig.medium() if medium else SuiteConfig.full()
-    changes = {k: v for k, v in (("seeds", seeds), ("problems", _names(problems)), ("samplers", _names(samplers))) if v is not None}
+    changes = {
+        k: v
+        for k, v in (("seeds", seeds), ("problems", _names(problems)), ("samplers", _names(samplers)))
+        if v is not None
+    }
     try:
         config = config.replace(**changes)
         check_dependencies(config)
@@ -168,27 +193,43 @@ def bench(
     result = run_suite(config, out, progress=progress, log=None if progress else console.print)
 
     table = Table(title="Recorded ratios (jump Restore / other)")
-    for column, justify in (("ratio", "left"), ("problem", "left"), ("value", "right"), ("goal", "right"), ("met", "center")):
+    for column, justify in (
+        ("ratio", "left"),
+        ("problem", "left"),
+        ("value", "right"),
+        ("goal", "right"),
+        ("met", "center"),
+    ):
         table.add_column(column, justify=justify)
     summary_at = next((i for i, r in enumerate(result.ratios) if r.problem == "geometric mean"), None)
     for i, r in enumerate(result.ratios):
         met = {True: "[green]yes[/]", False: "[red]no[/]", None: ""}[r.met]
-        table.add_row(r.name, r.problem, f"{r.value:.3g}", r.goal, met, end_section=summary_at is not None and i == summary_at - 1)
+        table.add_row(
+            r.name, r.problem, f"{r.value:.3g}", r.goal, met, end_section=summary_at is not None and i == summary_at - 1
+        )
     console.print(table)
     if result.interrupted:
-        console.print(f"[bold yellow]Interrupted by Ctrl-C:[/] the files hold the {len(result.rows)} runs that finished.")
+        console.print(
+            f"[bold yellow]Interrupted by Ctrl-C:[/] the files hold the {len(result.rows)} runs that finished."
+        )
     console.print(f"Suite took {result.seconds / 60:.1f} min. Files:")
     for path in result.files.values():
         console.print(f"  {path}")
 
 
-def _evidence(quick: bool, out: Path, seeds: int | None, problems: str | None, samplers: str | None, progress: bool) -> None:
+def _evidence(
+    quick: bool, out: Path, seeds: int | None, problems: str | None, samplers: str | None, progress: bool
+) -> None:
     """`restore bench --evidence`: run the evidence benchmark and print its summary."""
     from .bench import EvidenceConfig, run_evidence
     from .bench._evidence_report import summary_rows
 
     config = EvidenceConfig.quick() if quick else EvidenceConfig.full()
-    changes = {k: v for k, v in (("seeds", seeds), ("problems", _names(problems)), ("samplers", _names(samplers))) if v is not None}
+    changes = {
+        k: v
+        for k, v in (("seeds", seeds), ("problems", _names(problems)), ("samplers", _names(samplers)))
+        if v is not None
+    }
     try:
         config = config.replace(**changes)
     except ValueError as err:
@@ -197,13 +238,29 @@ def _evidence(quick: bool, out: Path, seeds: int | None, problems: str | None, s
     console.print(f"[bold]{config.name} evidence benchmark:[/] {', '.join(config.problems)}; {config.seeds} seed(s)")
     result = run_evidence(config, out, progress=progress, log=None if progress else console.print)
     table = Table(title="log Z error (estimate - truth) per seed")
-    for column, justify in (("problem", "left"), ("method", "left"), ("runs", "left"), ("log Z error", "right"), ("evaluations", "right"), ("run time (s)", "right")):
+    for column, justify in (
+        ("problem", "left"),
+        ("method", "left"),
+        ("runs", "left"),
+        ("log Z error", "right"),
+        ("evaluations", "right"),
+        ("run time (s)", "right"),
+    ):
         table.add_column(column, justify=justify)
     for s in summary_rows(result.rows):
-        table.add_row(s["problem"], s["method"], s["runs"], s["errors"], f"{s['evaluations']:,.0f}" if s["evaluations"] == s["evaluations"] else "-", f"{s['run_time']:.1f}")
+        table.add_row(
+            s["problem"],
+            s["method"],
+            s["runs"],
+            s["errors"],
+            f"{s['evaluations']:,.0f}" if s["evaluations"] == s["evaluations"] else "-",
+            f"{s['run_time']:.1f}",
+        )
     console.print(table)
     if result.interrupted:
-        console.print(f"[bold yellow]Interrupted by Ctrl-C:[/] the files hold the {len(result.rows)} runs that finished.")
+        console.print(
+            f"[bold yellow]Interrupted by Ctrl-C:[/] the files hold the {len(result.rows)} runs that finished."
+        )
     console.print(f"Evidence benchmark took {result.seconds / 60:.1f} min. Files:")
     for path in result.files.values():
         console.print(f"  {path}")
@@ -232,33 +289,49 @@ def _resolution(text: str) -> tuple[int, int]:
 
 @app.command()
 def render(
-    scene: str = typer.Argument(..., help="A built-in scene (cornell_box, door_ajar, caustic, glass_torus) or a Mitsuba XML file."),
-    method: str = typer.Option("restore", help="path (Mitsuba's integrator), uniform, pssmlt, restore, mala-restore or erpt."),
-    time_budget: float | None = typer.Option(None, "--time", min=1e-3, help="Wall-time budget in seconds (compilation excluded)."),
+    scene: str = typer.Argument(..., help=f"A built-in scene ({', '.join(sorted(SCENES))}) or a Mitsuba XML file."),
+    method: str = typer.Option("restore", help=f"One of {', '.join(METHODS)} (path: Mitsuba's own path tracer)."),
+    time_budget: float | None = typer.Option(
+        None,
+        "--time",
+        min=1e-3,
+        help="Wall-time budget of the sampling, in seconds. Loading the scene and compiling come "
+        "before it, and Restore's finishing of its open tours after it, so the command takes longer: the summary shows the split.",
+    ),
     evaluations: int | None = typer.Option(None, min=1, help="Path budget instead of (or as well as) a time budget."),
-    out: Path = typer.Option(Path("render.exr"), help="Image to write (.exr, or .npy); a tonemapped .png preview is written beside it."),
+    out: Path = typer.Option(
+        Path("render.exr"), help="Image to write (.exr, or .npy); a tonemapped .png preview is written beside it."
+    ),
     resolution: str | None = typer.Option(
-        None, help=f"Film size, e.g. 128 or 160x120 (default: an XML scene's own; {_BUILTIN_RESOLUTION} for built-in scenes)."
+        None,
+        help=f"Film size, e.g. 128 or 160x120 (default: an XML scene's own; {_BUILTIN_RESOLUTION} for built-in scenes).",
     ),
     max_depth: int | None = typer.Option(
-        None, min=1, help=f"Maximum path depth, as in Mitsuba's path integrator (default: an XML scene's own; {_BUILTIN_MAX_DEPTH} for built-in scenes)."
+        None,
+        min=1,
+        help=f"Maximum path depth, as in Mitsuba's path integrator (default: an XML scene's own; {_BUILTIN_MAX_DEPTH} for built-in scenes).",
     ),
-    lanes: int | None = typer.Option(None, min=1, help=f"Parallel lanes of the PSS renderers (default: {_LANES_HELP})."),
+    lanes: int | None = typer.Option(
+        None, min=1, help=f"Parallel lanes of the PSS renderers (default: {_LANES_HELP})."
+    ),
     tour_length: float = typer.Option(TOUR_LENGTH, min=1e-6, help="Restore's mean tour length (local moves per tour)."),
     p_large: float = typer.Option(P_LARGE, min=1e-6, max=1.0, help="PSSMLT's large-step probability."),
     seed: int = typer.Option(0, help="Random seed."),
     progress: bool = typer.Option(True, help="Show a progress bar."),
     checkpoint: Path | None = typer.Option(
-        None, help="Save the render's state to this file every minute, at the end and on Ctrl-C; resume from it if it exists (PSS methods)."
+        None,
+        help="Save the render's state to this file every minute, at the end and on Ctrl-C; resume from it if it exists (PSS methods).",
     ),
 ) -> None:
     """Render a Mitsuba scene with Metropolis Restore, a baseline, or Mitsuba's own path tracer.
 
     An XML scene keeps its film size and maximum depth unless --resolution or --max-depth
     is given; every setting of it that is changed (its reconstruction filter becomes a box
-    filter) is printed.
+    filter) is printed. A table then says how many paths were traced and how fast, where
+    the wall time went (scene loading, compiling, the budget, finishing), and whether a
+    few samples decide the image (k_hat).
     """
-    from .render._methods import GRADIENT_METHODS, METHODS
+    from .render._methods import GRADIENT_METHODS
 
     if method not in METHODS:
         _fail(f"unknown method {method!r}; choose from {', '.join(METHODS)}")
@@ -280,7 +353,7 @@ def render(
     try:
         settings = {"tour_length": tour_length, "p_large": p_large}
         lanes = default_lanes(method) if lanes is None else lanes
-        image, summary = _render(scene, method, time_budget, evaluations, size, max_depth, lanes, settings, seed, progress, method in GRADIENT_METHODS, checkpoint)
+        image, rows, note = _render(scene, method, time_budget, evaluations, size, max_depth, lanes, settings, seed, progress, method in GRADIENT_METHODS, checkpoint)  # fmt: skip
     except (FileNotFoundError, UnsupportedSceneError, LLVMNotFoundError, ImportError) as error:
         _fail(str(error))
     except ValueError as error:
@@ -289,23 +362,36 @@ def render(
 
     save_image(out, image)
     preview = save_image(out.with_suffix(".png"), image)
-    console.print(summary)
+    table = Table(title=f"{method} on {Path(scene).name if scene not in SCENES else scene}", show_header=False)
+    table.add_column(style="bold")
+    table.add_column()
+    for row in rows:
+        table.add_row(*row)
+    console.print(table)
+    if note:
+        console.print(note, soft_wrap=True)
     console.print(f"Image written to {out} (preview {preview})")
 
 
-def _render(scene, method, seconds, evaluations, resolution, max_depth, lanes, settings, seed, progress, needs_gradient, checkpoint=None):
-    """Run one render; returns the image and a one-line summary. `settings` go to `make_renderer`.
+def _render(scene, method, seconds, evaluations, resolution, max_depth, lanes, settings, seed, progress, needs_gradient, checkpoint=None):  # fmt: skip
+    """Run one render; returns the image, the rows of its summary (`restore.render._summary`)
+    and a note on an interrupted run. `settings` go to `make_renderer`.
 
     `resolution` and `max_depth` are `None` where not given: a built-in scene then gets the
     command's defaults, a scene file keeps its own (a depth is needed: Mitsuba's default of
     none becomes the library's default, with a note).
     """
+    import time
+
     import jax
-    import numpy as np
 
     from targets.mitsuba import PrimarySampleSpace, load_scene, render_native, render_native_for
     from targets.mitsuba._scene_checks import check_path_model, path_settings
     from targets.mitsuba._scenes import DEFAULT_MAX_DEPTH, is_scene_file
+
+    from .render._summary import native_rows, render_rows
+
+    start = time.perf_counter()
 
     if not is_scene_file(scene):
         resolution = resolution or _resolution(_BUILTIN_RESOLUTION)
@@ -317,50 +403,57 @@ def _render(scene, method, seconds, evaluations, resolution, max_depth, lanes, s
         max_depth = path_settings(loaded).max_depth
         if max_depth is None:
             max_depth = DEFAULT_MAX_DEPTH
-            notes.append(f"the scene's path integrator has no maximum depth; {max_depth} is used (pass --max-depth to choose)")
+            notes.append(
+                f"the scene's path integrator has no maximum depth; {max_depth} is used (pass --max-depth to choose)"
+            )
     for note in notes:
         console.print(f"[yellow]note:[/] {note}", soft_wrap=True)
     resolution = tuple(int(v) for v in loaded.sensors()[0].film().crop_size())
     if method == "path":
         pixels = resolution[0] * resolution[1]
+        scene_seconds = time.perf_counter() - start
         if evaluations is not None and seconds is None:
             spp = max(1, evaluations // pixels)
+            began = time.perf_counter()
             image = render_native(loaded, spp, seed=seed, max_depth=max_depth)
-            return image, f"path: {spp} spp ({spp * pixels:,} paths)"
+            return image, native_rows(spp, pixels, time.perf_counter() - began, scene_seconds), ""
         native = render_native_for(loaded, seconds, max_depth=max_depth, seed=seed)
-        note = "; [bold yellow]interrupted by Ctrl-C: the image holds the finished passes[/]" if native.interrupted else ""
-        return native.image, f"path: {native.spp} spp ({native.spp * pixels:,} paths) in {native.seconds:.1f} s{note}"
+        note = (
+            "[bold yellow]Interrupted by Ctrl-C:[/] the image holds the finished passes." if native.interrupted else ""
+        )
+        return native.image, native_rows(native.spp, pixels, native.seconds, scene_seconds), note
     from .render import render as run_render
     from .render._methods import make_renderer
 
     target = PrimarySampleSpace(loaded, max_depth=max_depth, russian_roulette=not needs_gradient)
     if needs_gradient:
         target.check_gradient_support()
+    renderer = make_renderer(method, **settings)
+    scene_seconds = time.perf_counter() - start
     result = run_render(
-        target, make_renderer(method, **settings), key=jax.random.key(seed), seconds=seconds,
+        target, renderer, key=jax.random.key(seed), seconds=seconds,
         evaluations=evaluations, lanes=lanes, progress=progress, checkpoint=checkpoint,
-    )
-    stats = ", ".join(f"{k} {v:.4g}" for k, v in result.statistics.items() if np.isfinite(v))
+    )  # fmt: skip
+    note = ""
     if result.interrupted:
-        stats += "; [bold yellow]interrupted by Ctrl-C: the image holds the finished part of the run[/]"
-        if checkpoint is not None:
-            stats += f" (run the same command again to resume from {checkpoint})"
-    return result.image, (
-        f"{method}: {result.evaluations:,} paths in {result.seconds:.1f} s (+{result.compile_seconds:.1f} s compile), "
-        f"{result.evaluations_per_second:,.0f} paths/s; {stats}"
-    )
+        note = "[bold yellow]Interrupted by Ctrl-C:[/] the image holds the finished part of the run"
+        note += "." if checkpoint is None else f" (run the same command again to resume from {checkpoint})."
+    return result.image, render_rows(result, renderer, scene_seconds), note
 
 
 @app.command("render-compare")
 def render_compare(
-    scenes: str = typer.Option("cornell_box,door_ajar,caustic,glass_torus", help="Comma-separated scenes (names or XML files)."),
+    scenes: str = typer.Option(
+        "cornell_box,door_ajar,caustic,glass_torus", help="Comma-separated scenes (names or XML files)."
+    ),
     methods: str = typer.Option("path,uniform,pssmlt,restore,mala-restore,erpt", help="Comma-separated methods."),
     time_budget: float = typer.Option(10.0, "--time", min=1e-3, help="Seconds per render (compilation excluded)."),
     realisations: int = typer.Option(3, min=1, help="Independent renders per method and scene."),
     resolution: str = typer.Option("64", help="Film size, e.g. 64 or 96x64."),
     max_depth: int = typer.Option(5, min=1, help="Maximum path depth."),
     lanes: str | None = typer.Option(
-        None, help=f"Parallel lanes of the PSS renderers: one count, or per method, e.g. 2048,restore=16384 (default: {_LANES_HELP})."
+        None,
+        help=f"Parallel lanes of the PSS renderers: one count, or per method, e.g. 2048,restore=16384 (default: {_LANES_HELP}).",
     ),
     tour_length: float = typer.Option(TOUR_LENGTH, min=1e-6, help="Restore's mean tour length (local moves per tour)."),
     p_large: float = typer.Option(P_LARGE, min=1e-6, max=1.0, help="PSSMLT's large-step probability."),
@@ -380,7 +473,7 @@ def render_compare(
             resolution=_resolution(resolution), max_depth=max_depth, lanes=None if lanes is None else _lanes(lanes), tour_length=tour_length,
             p_large=p_large, reference_spp=reference_spp, technique=technique, out_dir=out, progress=progress,
             log=console.print,
-        )
+        )  # fmt: skip
     except (FileNotFoundError, ValueError, ImportError, RuntimeError) as error:
         _fail(str(error))
     table = Table(title="Rendering ratios")

@@ -31,12 +31,30 @@ def test_render_writes_the_image_and_a_preview(tmp_path):
 
     out = tmp_path / "cornell.exr"
     result = _invoke("render", "cornell_box", "--method", "restore", "--evaluations", 200_000, "--resolution", 8,
-                     "--max-depth", 2, "--lanes", 512, "--no-progress", "--out", out)
+                     "--max-depth", 2, "--lanes", 512, "--no-progress", "--out", out)  # fmt: skip
     assert result.exit_code == 0, result.output
-    assert "restore:" in result.output and "paths" in result.output
+    assert "restore on cornell_box" in result.output
+    rows = dict(line.strip("│ ").split(" │ ", 1) for line in result.output.splitlines() if line.count("│") == 3)
+    rows = {label.strip(): value.strip() for label, value in rows.items() if label.strip()}
+    # the budget takes whole steps of 512 paths, and finishing the open tours adds more
+    assert int(rows["paths"].replace(",", "")) > 200_000 - 512 and rows["paths/s"].endswith("(budget and finishing)")
+    assert [part.split(" s ")[1] for part in rows["time"].split(", ")] == ["scene", "compile", "budget", "finishing"]
+    assert float(rows["tours"].split()[0].replace(",", "")) > 0 and rows["k_hat"].split()[0].replace(".", "").isdigit()
+    assert rows["reliable"].split(":")[0] in ("yes", "no")
     image = load_image(out)
     assert image.shape == (8, 8, 3) and np.all(np.isfinite(image)) and image.sum() > 0
     assert out.with_suffix(".png").stat().st_size > 100
+
+
+def test_the_help_and_the_error_name_the_same_scenes():
+    from targets.mitsuba import SCENES
+
+    help_text = _invoke("render", "--help").output
+    refused = _invoke("render", "no_such_scene", "--time", 1)
+    assert refused.exit_code == 2 and "unknown scene name" in refused.output, refused.output
+    listed = lambda text: [name for name in sorted(SCENES) if name in text]  # noqa: E731
+    assert listed(help_text) == listed(refused.output) == sorted(SCENES)
+    assert "finishing" in help_text and "compiling" in help_text
 
 
 @pytest.mark.parametrize(
@@ -64,8 +82,6 @@ def test_render_rejects_a_malformed_scene_and_delta_lights_for_gradients(tmp_pat
     point.write_text(POINT_LIGHT_XML)
     result = _invoke("render", point, "--method", "mala-restore", "--time", 1, "--out", tmp_path / "x.exr")
     assert result.exit_code == 2 and "point" in result.output.lower(), result.output
-
-
 
 
 @pytest.fixture
@@ -116,7 +132,7 @@ def test_render_compare_writes_the_table_figures_and_ratios(tmp_path, monkeypatc
     out = tmp_path / "results"
     result = _invoke("render-compare", "--scenes", "cornell_box", "--methods", "path,pssmlt,restore", "--time", 0.3,
                      "--realisations", 2, "--resolution", 8, "--max-depth", 2, "--lanes", 256, "--reference-spp", 64,
-                     "--no-progress", "--out", out)
+                     "--no-progress", "--out", out)  # fmt: skip
     assert result.exit_code == 0, result.output
     text = (out / "results.md").read_text()
     assert "Metropolis Restore / pssmlt" in text and "Metropolis Restore / path" in text and "PSS paths/s" in text
@@ -137,7 +153,7 @@ def test_render_compare_on_multiplexed_bdpt(tmp_path, monkeypatch):
     out = tmp_path / "results"
     result = _invoke("render-compare", "--scenes", "cornell_box", "--methods", "path,pssmlt,restore,mala-restore",
                      "--technique", "bdpt", "--time", 0.3, "--realisations", 1, "--resolution", 8, "--max-depth", 2,
-                     "--lanes", "256,restore=512", "--reference-spp", 64, "--no-progress", "--out", out)
+                     "--lanes", "256,restore=512", "--reference-spp", 64, "--no-progress", "--out", out)  # fmt: skip
     assert result.exit_code == 0, result.output
     text = (out / "results.md").read_text()
     assert "Metropolis Restore / MMLT" in text and "multiplexed BDPT" in text
@@ -150,7 +166,11 @@ def test_render_compare_on_multiplexed_bdpt(tmp_path, monkeypatch):
 
 @pytest.mark.parametrize(
     ("lanes", "message"),
-    [("256,restore=0", "positive integers"), ("path=256", "not a PSS method"), ("restore:256", "--lanes must look like")],
+    [
+        ("256,restore=0", "positive integers"),
+        ("path=256", "not a PSS method"),
+        ("restore:256", "--lanes must look like"),
+    ],
 )
 def test_render_compare_refuses_bad_lane_counts_before_rendering(tmp_path, lanes, message):
     result = _invoke("render-compare", "--scenes", "cornell_box", "--lanes", lanes, "--out", tmp_path)
@@ -176,7 +196,7 @@ def test_render_checkpoint_resumes_to_the_same_image(tmp_path):
     from restore.render._images import load_image
 
     args = ("render", "cornell_box", "--method", "restore", "--evaluations", 100_000, "--resolution", 8,
-            "--max-depth", 2, "--lanes", 256, "--no-progress", "--checkpoint", tmp_path / "run.ckpt")
+            "--max-depth", 2, "--lanes", 256, "--no-progress", "--checkpoint", tmp_path / "run.ckpt")  # fmt: skip
     first = _invoke(*args, "--out", tmp_path / "first.npy")
     assert first.exit_code == 0, first.output
     assert read_header(tmp_path / "run.ckpt")["lanes"] == 256

@@ -1,0 +1,54 @@
+"""What `restore render` reports: paths, paths/s, where the wall time went, tours, `k_hat`, and a verdict.
+
+The rows are built from a `RenderResult` and its renderer alone (no scene is rendered): the
+time split must account for the budget and the finishing separately, and the verdict must
+follow the renderer's tail statistic across `TAIL_WARNING`.
+"""
+
+import numpy as np
+import pytest
+
+from restore.render import RenderResult
+from restore.render._methods import make_renderer
+from restore.render._renderer import TAIL_WARNING
+from restore.render._summary import native_rows, reliability, render_rows
+
+
+def result(**changes):
+    fields = dict(
+        image=np.zeros((2, 2, 3), np.float32), evaluations=1_200_000, seconds=10.0, compile_seconds=6.5, steps=100,
+        lanes=8192, statistics={"tours_completed": 80_000.0, "effective_tours": 3_000.0, "tour_k_hat": 0.3},
+        finishing_seconds=2.0,
+    )  # fmt: skip
+    return RenderResult(**{**fields, **changes})
+
+
+def test_the_time_split_separates_compile_budget_and_finishing():
+    rows = dict(render_rows(result(), make_renderer("restore"), scene_seconds=0.3))
+    assert rows["time"] == "0.3 s scene, 6.5 s compile, 8.0 s budget, 2.0 s finishing"
+    assert rows["paths"] == "1,200,000" and rows["paths/s"] == "120,000 (budget and finishing)"
+    assert rows["tours"] == "80,000 (3,000 effective)"
+    assert rows["k_hat"].startswith("0.30 ") and "tour durations" in rows["k_hat"]
+    assert rows["reliable"].startswith("yes")
+
+
+def test_the_verdict_follows_the_tail_statistic():
+    assert reliability(TAIL_WARNING - 0.01).startswith("yes")
+    assert reliability(TAIL_WARNING + 0.01).startswith("no")
+    assert reliability(float("nan")).startswith("unknown")
+    heavy = result(statistics={"z_k_hat": 1.2}, finishing_seconds=0.0)
+    rows = dict(render_rows(heavy, make_renderer("pssmlt"), scene_seconds=1.0))
+    assert rows["reliable"].startswith("no") and "luminance" in rows["k_hat"]
+    assert "tours" not in rows and "finishing" not in rows["time"] and rows["paths/s"] == "120,000 (budget)"
+
+
+@pytest.mark.parametrize("method", ["uniform", "erpt"])
+def test_renderers_without_a_tail_diagnostic_say_so(method):
+    rows = dict(render_rows(result(statistics={}, finishing_seconds=0.0), make_renderer(method), scene_seconds=0.0))
+    assert "k_hat" not in rows and rows["reliable"].startswith("not checked")
+
+
+def test_mitsubas_path_tracer_reports_its_samples_per_pixel():
+    rows = dict(native_rows(spp=16, pixels=64, seconds=0.5, scene_seconds=0.1))
+    assert rows["paths"] == "1,024 (16 spp)" and rows["paths/s"] == "2,048"
+    assert rows["time"] == "0.1 s scene, 0.5 s render"
