@@ -75,6 +75,12 @@ class Observables(eqx.Module):
     def __call__(self, x: Array) -> Array:
         return jnp.concatenate([jnp.ravel(fn(x)).astype(x.dtype) for fn in self.functions])
 
+    @property
+    def requested(self) -> tuple[Slot, ...]:
+        """The observables as they were given: without the position `"x"` where it was only added."""
+        added = len(self.slots) > 1 and self.slots[-1].name == "x" and self.functions[-1] is position
+        return self.slots[:-1] if added else self.slots
+
     def slot(self, name: str) -> Slot:
         for slot in self.slots:
             if slot.name == name:

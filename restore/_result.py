@@ -22,6 +22,7 @@ from ._estimates import (
     tour_ratio,
     unreliable_reason,
 )
+from ._estimates_table import estimates_table
 from ._observables import Observables
 from ._pareto import k_hat_limit
 from ._sampler import AbstractSampler
@@ -392,7 +393,8 @@ class SampleResult:
                 )
 
     def summary(self) -> str:
-        """A short text report of the run."""
+        """A short text report of the run, then a table of the estimates:
+        each observable's mean, standard error, ESS, `k_hat` and whether its error bar can be trusted."""
         lines = [
             f"{self.sampler_name}: {self.num_lanes} lanes x {self.num_steps} steps in {self.wall_time:.2f} s"
             + (" (interrupted)" if self.interrupted else ""),
@@ -413,7 +415,7 @@ class SampleResult:
                     log_z = self.normalising_constant("tours")
                 verdict = "" if log_z.reliable else f"; UNRELIABLE: {unreliable_reason(log_z)}"
                 lines.append(f"  log Z = {float(log_z.value):.4f} +- {float(log_z.standard_error):.4f} (tours{verdict})")
-        return "\n".join(lines)
+        return "\n".join(lines + estimates_table(self.observables, self.estimate, self.ess, self._default_method(None)))
 
     def __repr__(self) -> str:
         return f"<SampleResult {self.sampler_name}: {self.num_lanes} lanes x {self.num_steps} steps>"

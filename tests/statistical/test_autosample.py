@@ -63,6 +63,10 @@ def test_stages_are_reported_and_counted(spread):
     assert spread.stages[-1].num_components >= 32  # one component per mode, or close
     text = spread.summary()
     assert "stage" in text and "final" in text and "k_hat" in text
+    # Then the final run's table of estimates: a row per component, with its reliability.
+    x0 = next(line.split() for line in text.splitlines() if line.split()[:1] == ["x[0]"])
+    assert float(x0[1]) == pytest.approx(float(spread.estimate("x").value[0]), abs=0.51 * 10 ** -len(x0[2].split(".")[1]))
+    assert x0[-1] == "yes"
     assert "AutoResult" in repr(spread)
 
 
