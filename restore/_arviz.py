@@ -1,11 +1,18 @@
 """Export of a run's stored draws to ArviZ: `xarray.DataTree` with ArviZ 1.x, `InferenceData` with 0.x.
 
-Each lane is a chain: lanes are independent regenerative processes started from the
-regeneration distribution, so ArviZ's between-chain diagnostics (R-hat) and effective
-sample sizes apply to them as to independent MCMC chains. The stored draws of a Restore run
-are *weighted*: a draw's weight is its (expected) holding time. ArviZ expects equally
-weighted draws, so by default each lane's draws are resampled in proportion to their
-weights; the groups say which kind of draws they hold.
+Lanes are grouped into a few chains (4 by default), each chain its lanes' draws one after
+another. A lane is a regenerative process started at a regeneration: its tours are
+independent and identically distributed, so lanes laid end to end are distributed as one
+longer run (up to each lane's last, unfinished tour). One chain per lane would make R-hat
+measure how short each lane is: with `n` draws and an autocorrelation time of `tau` draws,
+R-hat is about `sqrt(1 + 2 (tau - 1) / n)` even for a run whose estimates are exact, above the
+usual 1.01 for the few hundred draws a lane keeps. Over chains of many lanes, R-hat and ESS
+mean what they mean for MCMC chains: R-hat asks whether independent parts of the run agree
+within their error, and ArviZ's ESS agrees with the run's own tour-based `ess`.
+
+The stored draws of a Restore run are *weighted*: a draw's weight is its (expected) holding
+time. ArviZ expects equally weighted draws, so by default each lane's draws are resampled in
+proportion to their weights; the groups say which kind of draws they hold.
 """
 
 from __future__ import annotations
@@ -15,6 +22,11 @@ from collections.abc import Callable, Mapping
 
 import numpy as np
 
+from ._validation import check_integer
+
+#: Chains the lanes are grouped into by default: as many as a usual run of MCMC chains.
+CHAINS = 4
+
 #: What the posterior group holds, written into its attributes (`restore_draws`).
 RESAMPLED = "resampled"
 WEIGHTED = "weighted"
@@ -22,8 +34,8 @@ WEIGHTED = "weighted"
 _NOTES = {
     RESAMPLED: (
         "each lane's stored draws were resampled (systematic resampling) in proportion to their holding-time "
-        "weights, so these draws are equally weighted; sample_stats.source_draw is the stored draw each one "
-        "copies and sample_stats.source_weight its weight"
+        "weights, so these draws are equally weighted; sample_stats.source_draw is the stored draw of its lane "
+        "(sample_stats.lane) each one copies and sample_stats.source_weight its weight"
     ),
     WEIGHTED: (
         "the stored draws as the run kept them: draw i of a lane carries the weight sample_stats.weight "
@@ -49,6 +61,18 @@ def resample_lanes(weights: np.ndarray, seed: int) -> np.ndarray:
     return index
 
 
+def chain_count(num_lanes: int, chains: int) -> int:
+    """How many chains `num_lanes` lanes are grouped into: the largest divisor of `num_lanes` up to
+    `chains` (chains must be equally long; `chains >= num_lanes` gives one chain per lane)."""
+    chains = check_integer(chains, "chains")
+    return max(c for c in range(1, min(chains, num_lanes) + 1) if num_lanes % c == 0)
+
+
+def as_chains(values: np.ndarray, chains: int) -> np.ndarray:
+    """`(lanes, n, ...)` as `(chains, lanes // chains * n, ...)`: consecutive lanes end to end."""
+    return values.reshape(chains, -1, *values.shape[2:])
+
+
 def to_arviz(
     draws: np.ndarray,
     draw_weights: np.ndarray,
@@ -56,8 +80,9 @@ def to_arviz(
     seed: int = 0,
     transform: Callable[[np.ndarray], Mapping[str, np.ndarray]] | None = None,
     attrs: Mapping[str, object] | None = None,
+    chains: int = CHAINS,
 ):
-    """Stored draws `(slots, lanes, d)` and weights `(slots, lanes)` as an ArviZ object (chains = lanes).
+    """Stored draws `(slots, lanes, d)` and weights `(slots, lanes)` as an ArviZ object.
 
     Arguments:
         draws: the stored draws, `(slots, lanes, d)`.
@@ -69,6 +94,10 @@ def to_arviz(
             `(lanes, n)` (e.g. a NumPyro model's constrained parameters); default one
             variable `"x"`.
         attrs: more attributes for the posterior group.
+        chains: how many chains the lanes are grouped into (the largest divisor of the
+            number of lanes up to this), each chain its lanes' draws one after another; the
+            number of lanes for one chain per lane. `sample_stats.lane` says which lane each
+            draw is from.
 
     Returns:
         `xarray.DataTree` with ArviZ 1.x, `arviz.InferenceData` with ArviZ 0.x.
@@ -83,9 +112,14 @@ def to_arviz(
     if resample:
         index = resample_lanes(weights, seed)
         draws = np.take_along_axis(draws, index[:, :, None], axis=1)
-        stats: dict[str, np.ndarray] = {"weight": np.ones_like(weights), "source_draw": index, "source_weight": np.take_along_axis(weights, index, axis=1)}
+        stats: dict[str, np.ndarray] = {
+            "weight": np.ones_like(weights),
+            "source_draw": index,
+            "source_weight": np.take_along_axis(weights, index, axis=1),
+        }
     else:
         stats = {"weight": weights}
+    stats["lane"] = np.repeat(np.arange(draws.shape[0]), draws.shape[1]).reshape(draws.shape[:2])
     if transform is None:
         posterior = {"x": draws}
     else:
@@ -93,10 +127,20 @@ def to_arviz(
         bad = [name for name, value in posterior.items() if value.shape[:2] != draws.shape[:2]]
         if bad:
             raise ValueError(f"transform must keep the leading (lane, draw) axes {draws.shape[:2]}; {bad} do not")
-    group_attrs = {"restore_draws": kind, "restore_note": _NOTES[kind], **(attrs or {})}
+    num_chains = chain_count(draws.shape[0], chains)
+    posterior = {name: as_chains(value, num_chains) for name, value in posterior.items()}
+    stats = {name: as_chains(value, num_chains) for name, value in stats.items()}
+    group_attrs = {
+        "restore_draws": kind,
+        "restore_note": _NOTES[kind],
+        "restore_chains": f"{num_chains} chains of {draws.shape[0] // num_chains} lanes each, a chain's lanes one after another",
+        **(attrs or {}),
+    }
     with warnings.catch_warnings():  # ArviZ warns when there are more chains (lanes) than draws: normal here
         warnings.filterwarnings("ignore", message="(More chains|Found chain dimension)", category=UserWarning)
         if int(az.__version__.split(".")[0]) >= 1:  # ArviZ 1.x: a DataTree, attributes per group
             groups = {"posterior": posterior, "sample_stats": stats}
             return az.from_dict(groups, attrs={"posterior": group_attrs, "sample_stats": group_attrs})
-        return az.from_dict(posterior=posterior, sample_stats=stats, posterior_attrs=group_attrs, sample_stats_attrs=group_attrs)
+        return az.from_dict(
+            posterior=posterior, sample_stats=stats, posterior_attrs=group_attrs, sample_stats_attrs=group_attrs
+        )

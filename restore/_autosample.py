@@ -162,9 +162,9 @@ class AutoResult:
     def estimate_draws(self, fn):
         return self.result.estimate_draws(fn)
 
-    def to_arviz(self, resample: bool = True, seed: int = 0, transform=None):
-        """The final run's stored draws in ArviZ (see `SampleResult.to_arviz`)."""
-        return self.result.to_arviz(resample=resample, seed=seed, transform=transform)
+    def to_arviz(self, resample: bool = True, seed: int = 0, transform=None, chains: int | None = None):
+        """The final run's stored draws in ArviZ, lanes grouped into chains (see `SampleResult.to_arviz`)."""
+        return self.result.to_arviz(resample=resample, seed=seed, transform=transform, chains=chains)
 
     def summary(self) -> str:
         """The stages in a table, then the final run's summary."""

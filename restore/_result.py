@@ -11,6 +11,7 @@ from typing import Any, Literal
 import jax
 import numpy as np
 
+from ._arviz import CHAINS
 from ._arviz import to_arviz as arviz_export
 from ._diagnostics import TourStatistics, tour_statistics
 from ._estimates import (
@@ -325,16 +326,24 @@ class SampleResult:
         wv = np.einsum("sl,sl...->l...", w, values)
         return lane_ratio(wv, w.sum(axis=0))
 
-    def to_arviz(self, resample: bool = True, seed: int = 0, transform: Callable[[np.ndarray], Mapping[str, np.ndarray]] | None = None):
-        """The stored draws in ArviZ, lanes as chains: an `xarray.DataTree` with ArviZ 1.x, `InferenceData` with 0.x.
+    def to_arviz(self, resample: bool = True, seed: int = 0, transform: Callable[[np.ndarray], Mapping[str, np.ndarray]] | None = None, chains: int | None = None):
+        """The stored draws in ArviZ, lanes grouped into chains: an `xarray.DataTree` with ArviZ 1.x, `InferenceData` with 0.x.
+
+        The lanes of a regenerative run are independent sequences of i.i.d. tours, so a few
+        consecutive lanes laid end to end are distributed as one longer run: by default each
+        of 4 chains holds its lanes' draws one after another, and `az.rhat` / `az.ess` mean
+        what they mean for MCMC chains (one chain per lane would make R-hat measure how
+        short a lane is; see the docs' page on R-hat and ESS). The lanes of other samplers
+        (e.g. `MixtureMH`) start away from the target and are one chain each by default, so
+        that R-hat sees whether each has forgotten its start.
 
         The stored draws are weighted by their holding times. ArviZ expects equally
         weighted draws: with `resample=True` each lane's draws are resampled in proportion
         to their weights (systematic resampling), and `sample_stats` holds `weight` (all
-        ones), `source_draw` (the stored draw each copies) and `source_weight`; with
-        `resample=False` the draws are kept as stored and `sample_stats.weight` holds their
-        weights. The attribute `restore_draws` of the groups says which (`"resampled"` or
-        `"weighted"`). R-hat and ESS from ArviZ (`az.rhat`, `az.ess`) treat lanes as chains.
+        ones), `source_draw` (the stored draw of its lane each copies) and `source_weight`;
+        with `resample=False` the draws are kept as stored and `sample_stats.weight` holds
+        their weights. `sample_stats.lane` is each draw's lane. The attributes `restore_draws`
+        (`"resampled"` or `"weighted"`) and `restore_chains` of the groups say which.
 
         Arguments:
             resample: resample the draws to equal weights (default) or keep them weighted.
@@ -342,8 +351,13 @@ class SampleResult:
             transform: optional map from draws `(lanes, n, d)` to named arrays with leading
                 axes `(lanes, n)`, e.g. `targets.numpyro.NumPyroTarget.constrain`; default one
                 variable `"x"`.
+            chains: how many chains the lanes are grouped into (the largest divisor of the
+                number of lanes up to this; `num_lanes` for one chain per lane). Default: 4
+                for a regenerative run, one chain per lane otherwise.
         """
-        return arviz_export(self.draws, self.draw_weights, resample=resample, seed=seed, transform=transform, attrs={"sampler": self.sampler_name})
+        if chains is None:
+            chains = CHAINS if self.is_regenerative else self.num_lanes
+        return arviz_export(self.draws, self.draw_weights, resample=resample, seed=seed, transform=transform, attrs={"sampler": self.sampler_name}, chains=chains)
 
     # ------------------------------------------------------------------ reporting
     def _warn(self) -> None:

@@ -219,13 +219,13 @@ class NumPyroTarget:
         run = getattr(result, "result", result)
         return run.estimate_draws(lambda x: np.asarray(apply(self.constrain(x)[name])))
 
-    def to_arviz(self, result, resample: bool = True, seed: int = 0):
-        """A result's stored draws in ArviZ, one variable per site (constrained), lanes as chains.
+    def to_arviz(self, result, resample: bool = True, seed: int = 0, chains: int | None = None):
+        """A result's stored draws in ArviZ, one variable per site (constrained), lanes grouped into chains.
 
         See `restore.SampleResult.to_arviz`.
         """
         run = getattr(result, "result", result)
-        return run.to_arviz(resample=resample, seed=seed, transform=self.constrain)
+        return run.to_arviz(resample=resample, seed=seed, transform=self.constrain, chains=chains)
 
     def __repr__(self) -> str:
         sites = ", ".join(f"{n}{list(s) if s else ''}" for n, s in self.shapes.items())

@@ -40,7 +40,7 @@ def test_draws_arviz_and_summary(run):
     est = run.estimate_draws(lambda x: x**2)
     assert np.all(np.abs(est.z_score(1.0)) < 4.5)
     idata = run.to_arviz()
-    assert idata.posterior["x"].shape[:2] == (128, run.draws.shape[0])
+    assert idata.posterior["x"].shape[:2] == (4, 32 * run.draws.shape[0])
     text = run.summary()
     assert "tours" in text and "log Z" in text
     stats = run.tour_statistics()
