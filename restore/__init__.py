@@ -37,6 +37,7 @@ from ._restore import Restore as Restore
 from ._restore import RestoreState as RestoreState
 from ._result import LogEstimate as LogEstimate
 from ._result import SampleResult as SampleResult
+from ._result import ThinnedDrawsWarning as ThinnedDrawsWarning
 from ._sample import sample as sample
 from ._sampler import AbstractSampler as AbstractSampler
 from ._sampler import RunFacts as RunFacts

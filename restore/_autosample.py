@@ -43,6 +43,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, PRNGKeyArray
 
 from ._compile import jit
+from ._coordinates import check_coordinates
 from ._jump_restore import JumpRestore
 from ._pareto import K_HAT_LIMIT
 from ._progress import console_note
@@ -50,7 +51,8 @@ from ._random import distribution_draws
 from ._result import SampleResult
 from ._sample import _draw_capacity, _thinning, sample
 from ._seeding import seed_draws
-from ._validation import check_integer, check_logdensity
+from ._validation import check_integer, check_key, check_logdensity
+from ._warnings import AUTOSAMPLE_ADVICE, advising
 from .local import AbstractLocalKernel, RandomWalk
 from .regeneration import (
     AbstractRegeneration,
@@ -69,6 +71,8 @@ HEALTHY_DURATION_K = 0.3
 HEALTHY_IMPORTANCE_K = K_HAT_LIMIT
 #: Degrees of freedom of the defensive component built from a box or a scale.
 DEFENSIVE_DF = 3.0
+#: Seeding starts on which the log density's coordinates are checked (`check_coordinates`).
+PROBE_POINTS = 8
 
 #: Per log density and dimension, the number of components each regeneration family was last
 #: run with (padded with zero-weight components: `Fit.padded`). A Restore run's programs are
@@ -197,9 +201,11 @@ def _user_knowledge(box, scale, loc, prior, dim, dtype):
             "give exactly one of box=(lower, upper), scale= (with optional loc=) or prior= (a "
             f"restore.regeneration distribution): what you know about where the target's mass is; got {given or 'none'}"
         )
+    dim = None if dim is None else check_integer(dim, "dim")
     if prior is not None:
         if not isinstance(prior, AbstractRegeneration):
             raise TypeError(f"prior must be a restore.regeneration distribution, got {type(prior).__name__}")
+        _agrees(dim, prior.dim, "prior")
         return prior, prior
     if box is not None:
         try:
@@ -211,21 +217,43 @@ def _user_knowledge(box, scale, loc, prior, dim, dtype):
             if dim is None:
                 raise ValueError("box bounds are scalars: give dim= too")
             lower, upper = np.full(dim, float(lower)), np.full(dim, float(upper))
+        if lower.ndim == 1:
+            _agrees(dim, lower.shape[0], "box")
         if lower.ndim != 1 or not (np.all(np.isfinite(lower)) and np.all(np.isfinite(upper)) and np.all(upper > lower)):
             raise ValueError("box must be (lower, upper) with finite 1-d bounds and upper > lower everywhere")
         centre, half = 0.5 * (lower + upper), 0.5 * (upper - lower)
         starts = UniformBox(jnp.asarray(lower, dtype), jnp.asarray(upper, dtype))
         return starts, _diagonal_t(centre, half, dtype)
     scale = np.asarray(scale, np.float64)
+    if scale.ndim > 1:
+        raise ValueError(f"scale must be a scalar or a vector (d,), got shape {scale.shape}")
+    if scale.ndim == 1:
+        _agrees(dim, scale.shape[0], "scale")
     if loc is None:
         if scale.ndim == 0 and dim is None:
             raise ValueError("scale is a scalar and no loc is given: give dim= too")
         loc = np.zeros(dim if scale.ndim == 0 else scale.shape[0])
-    loc = np.asarray(loc, np.float64).reshape(-1)
+    loc = np.asarray(loc, np.float64)
+    if loc.ndim > 1:
+        raise ValueError(f"loc must be a scalar or a vector (d,), got shape {loc.shape}")
+    if loc.ndim == 0:  # a scalar centre: one value for every coordinate
+        if scale.ndim == 0 and dim is None:
+            raise ValueError("scale and loc are scalars: give dim= too")
+        loc = np.full(dim if scale.ndim == 0 else scale.shape[0], float(loc))
+    _agrees(dim, loc.shape[0], "loc")
+    if scale.ndim == 1 and scale.shape != loc.shape:
+        raise ValueError(f"scale has {scale.shape[0]} coordinates and loc {loc.shape[0]}: they must agree")
     scale = np.broadcast_to(scale, loc.shape)
     if not (np.all(np.isfinite(scale)) and np.all(scale > 0) and np.all(np.isfinite(loc))):
         raise ValueError("scale must be positive and finite, and loc finite")
     return StudentT(jnp.asarray(loc, dtype), jnp.asarray(scale**2, dtype), DEFENSIVE_DF), _diagonal_t(loc, scale, dtype)
+
+
+def _agrees(dim: int | None, length: int, what: str) -> None:
+    """Refuse a `dim` that disagrees with the length of `box`, `scale`, `loc` or the prior
+    (one of them would otherwise be silently ignored)."""
+    if dim is not None and int(dim) != int(length):
+        raise ValueError(f"dim={dim} disagrees with {what}, which has {length} coordinates: give one dimension")
 
 
 def _diagonal_t(centre: np.ndarray, scale: np.ndarray, dtype) -> DiagonalMixture:
@@ -357,6 +385,7 @@ def autosample(
         An `AutoResult`.
     """
     started = time.perf_counter()
+    check_key(key)
     num_lanes, num_steps = check_integer(num_lanes, "num_lanes", minimum=4), check_integer(num_steps, "num_steps")
     max_stages, seed_steps = check_integer(max_stages, "max_stages"), check_integer(seed_steps, "seed_steps", minimum=4)
     stage_steps = max(100, num_steps // 4) if stage_steps is None else check_integer(stage_steps, "stage_steps")
@@ -370,7 +399,14 @@ def autosample(
 
     key_seed, key_starts, key_final, stage_keys = _keys(key, max_stages)
     clock = time.perf_counter()
-    seeds = seed_draws(logdensity, distribution_draws(starts_from, key_starts, num_lanes), key_seed, num_steps=seed_steps)
+    starts = distribution_draws(starts_from, key_starts, num_lanes)
+    if starts.dtype != dtype:
+        raise ValueError(
+            f"the prior draws {starts.dtype} numbers and JAX computes in {dtype} (jax_enable_x64 was switched "
+            "after the prior was built?): build the prior, and the target, after jax.config.update('jax_enable_x64', ...)"
+        )
+    check_coordinates(logdensity, starts[:PROBE_POINTS])
+    seeds = seed_draws(logdensity, starts, key_seed, num_steps=seed_steps)
     seed_report = StageReport(
         0, "seed", "chains", num_lanes, seeds.evaluations, time.perf_counter() - clock,
         math.nan, math.nan, math.nan, math.nan, math.nan, False,
@@ -444,7 +480,8 @@ def autosample(
     clock = time.perf_counter()
     sampler, piloted = sampler_for(u, log_z)
     sample_kwargs.setdefault("progress", progress)
-    result = sample(sampler, key_final, num_lanes=num_lanes, num_steps=num_steps, observables=observables, **sample_kwargs)
+    with advising(AUTOSAMPLE_ADVICE):
+        result = sample(sampler, key_final, num_lanes=num_lanes, num_steps=num_steps, observables=observables, **sample_kwargs)
     final = _stage_report(len(stages), "final", fit, result, sampler.pilot_size if piloted else 0, time.perf_counter() - clock)
     stages.append(final)
     total = sum(s.evaluations for s in stages)

@@ -97,12 +97,7 @@ def tour_statistics(
     var = max(T2 / n - mean**2, 0.0) * n / max(n - 1, 1)
     eff = T**2 / T2 if T2 > 0 else 0.0
     share = longest_share(*histogram)
-    # With underflowed durations (T or T^2 summing to zero) the tail statistics mean nothing:
-    # estimates refuse such runs with a clear error, so no heavy-tail warning is raised here.
-    heavy = unfinished_tours > 0 or (
-        n >= 20 and T2 > 0 and (share > LONGEST_SHARE_LIMIT or eff < EFFECTIVE_SHARE_LIMIT * n or K_HAT_LIMIT <= limit <= k_hat)
-    )
-    return TourStatistics(
+    stats = TourStatistics(
         num_tours=n,
         mean_duration=mean,
         mean_duration_se=math.sqrt(var / n),
@@ -111,8 +106,35 @@ def tour_statistics(
         longest_share=share,
         max_duration=float(np.max(max_tour)),
         incomplete_fraction=max(0.0, 1.0 - T / total) if total > 0 else 1.0,
-        heavy_tailed=bool(heavy),
+        heavy_tailed=False,
         k_hat=float(k_hat),
         k_limit=limit,
         unfinished_tours=int(unfinished_tours),
     )
+    return stats._replace(heavy_tailed=bool(heavy_tail_reasons(stats)))
+
+
+def heavy_tail_reasons(stats: TourStatistics) -> str:
+    """Why the tours are flagged (`heavy_tailed`), in words that quote only the checks that
+    failed: tours left open, a longest 1% that holds too much time, too few effective
+    tours, a Pareto tail shape at or above its limit. Empty when none failed."""
+    reasons = []
+    if stats.unfinished_tours > 0:
+        u = stats.unfinished_tours
+        reasons.append(f"{u} tour{'s' if u > 1 else ''} still ran after the finishing steps and {'were' if u > 1 else 'was'} left out")
+    # With underflowed durations (T or T^2 summing to zero: no effective tours) the tail
+    # statistics mean nothing: estimates refuse such runs with a clear error instead.
+    if stats.num_tours >= 20 and stats.effective_num_tours > 0:
+        if stats.longest_share > LONGEST_SHARE_LIMIT:
+            reasons.append(
+                f"the longest 1% of tours hold {stats.longest_share:.0%} of the time (more than "
+                f"{LONGEST_SHARE_LIMIT:.0%}; exponential tours give about 6%)"
+            )
+        if stats.effective_num_tours < EFFECTIVE_SHARE_LIMIT * stats.num_tours:
+            reasons.append(f"the {stats.num_tours} tours are worth {stats.effective_num_tours:.1f} equally long ones")
+        if K_HAT_LIMIT <= stats.k_limit <= stats.k_hat:
+            reasons.append(
+                f"the tour durations have a heavy tail (Pareto shape k_hat = {stats.k_hat:.2f}, at or above "
+                f"{stats.k_limit:.2f}: their variance is likely infinite)"
+            )
+    return "; ".join(reasons)

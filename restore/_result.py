@@ -13,7 +13,7 @@ import numpy as np
 
 from ._arviz import CHAINS
 from ._arviz import to_arviz as arviz_export
-from ._diagnostics import TourStatistics, tour_statistics
+from ._diagnostics import TourStatistics, heavy_tail_reasons, tour_statistics
 from ._estimates import (
     Estimate,
     UnreliableEstimateWarning,
@@ -25,10 +25,11 @@ from ._estimates import (
 )
 from ._estimates_table import estimates_table
 from ._observables import Observables
-from ._pareto import k_hat_limit
+from ._pareto import K_HAT_LIMIT, k_hat_limit
 from ._sampler import AbstractSampler
 from ._tails import TourTails, duration_k, importance_k, residual_k, select_lanes
 from ._trace import RunTrace
+from ._warnings import SAMPLE_ADVICE, advice, warn
 
 Method = Literal["tours", "lanes"]
 
@@ -71,6 +72,8 @@ class SampleResult:
         expected_tour_times: per lane, the complete tours' expected total duration over
             `Z` with several phases (`None` with one).
         trace: the kill rate and acceptance of each chunk (a `restore.RunTrace`), or `None`.
+        advice: what the warnings advise when the regeneration is far from the target
+            (it depends on how the run was built: by hand or by `restore.autosample`).
     """
 
     sampler_name: str
@@ -97,6 +100,8 @@ class SampleResult:
     pilot: Any
     expected_tour_times: np.ndarray | None
     trace: RunTrace | None = None
+    advice: str = SAMPLE_ADVICE
+    _thinning_noted: bool = dataclasses.field(default=False, init=False, repr=False)
 
     @classmethod
     def from_run(cls, *, sampler: AbstractSampler, pilot, observables: Observables, sums, histogram, tails, draws, draw_weights, final_state, num_steps, finishing_steps, thin, weights, wall_time, interrupted, draws_note=None, unfinished_tours=0, trace=None) -> SampleResult:
@@ -127,6 +132,7 @@ class SampleResult:
             pilot=pilot,
             expected_tour_times=sampler.expected_tour_times(final_state.tour, sums.num_tours) if sampler.has_tours else None,
             trace=trace,
+            advice=advice(),
         )
         result._warn()
         return result
@@ -181,7 +187,7 @@ class SampleResult:
         else:
             est = lane_ratio(pick(s.all_f)[:, cut], pick(s.all_t))
         shaped = Estimate(*(np.reshape(a, slot.shape) for a in est[:3]), est.k_limit, est.caveat)  # type: ignore[call-arg]
-        _warn_unreliable(f"the estimate of {name!r}", shaped)
+        _warn_unreliable(f"the estimate of {name!r}", shaped, self.advice)
         return shaped
 
     def ess(self, name: str, method: Method | None = None) -> np.ndarray:
@@ -246,7 +252,7 @@ class SampleResult:
             est = LogEstimate(np.asarray(log_z), np.asarray(se), np.asarray(k_hat), k_hat_limit(starts))
         else:
             raise ValueError(f"method must be 'tours' or 'importance', got {method!r}")
-        _warn_unreliable(f"log Z ({method})", est)
+        _warn_unreliable(f"log Z ({method})", est, self.advice)
         return est
 
     def _open_tours_caveat(self, lanes=None) -> str:
@@ -262,7 +268,8 @@ class SampleResult:
             f"{count} tour{'s were' if count > 1 else ' was'} still running "
             f"{self.finishing_steps} steps after the budget ended and left out, so tours can outlast the run and the "
             "tour-based estimates miss their time (a region "
-            "the regeneration barely covers, such as a missed mode)"
+            "the regeneration barely covers: a missed mode, a tail heavier than the regeneration's, or a density "
+            "with infinite mass)"
         )
 
     def tour_statistics(self) -> TourStatistics:
@@ -270,7 +277,9 @@ class SampleResult:
         if not self.has_tours:
             raise ValueError(f"{self.sampler_name} has no tours")
         try:  # the requested tour length, if any, corrected for the pilot's error in Z
-            expected = math.exp(float(self.normalising_constant("importance").value) - self.tour_log_rate)
+            with warnings.catch_warnings():  # a statistic of the tours, not the user's estimate of Z
+                warnings.simplefilter("ignore", UnreliableEstimateWarning)
+                expected = math.exp(float(self.normalising_constant("importance").value) - self.tour_log_rate)
         except ValueError:
             expected = math.nan
         s = self.sums
@@ -319,6 +328,7 @@ class SampleResult:
         """
         if self.draws.shape[0] == 0:
             raise ValueError("no draws were stored: pass max_draws > 0 (or thin) to restore.sample")
+        self.note_thinning()
         values = np.asarray(fn(self.draws), np.float64)
         if values.shape[:2] != self.draws.shape[:2]:
             raise ValueError(f"fn must keep the leading (draw, lane) axes {self.draws.shape[:2]}, got {values.shape}")
@@ -357,53 +367,52 @@ class SampleResult:
         """
         if chains is None:
             chains = CHAINS if self.is_regenerative else self.num_lanes
+        self.note_thinning()
         return arviz_export(self.draws, self.draw_weights, resample=resample, seed=seed, transform=transform, attrs={"sampler": self.sampler_name}, chains=chains)
 
     # ------------------------------------------------------------------ reporting
+    def note_thinning(self) -> None:
+        """Say once, when the draws are used, that the budget thinned them (`draws_note`): the
+        streamed estimates use every step, so only work on the draws is affected."""
+        if self.draws_note and not self._thinning_noted:
+            self._thinning_noted = True
+            warn(f"the stored draws were {self.draws_note}", ThinnedDrawsWarning)
+
     def _warn(self) -> None:
         if self.num_invalid:
-            warnings.warn(
+            warn(
                 f"the log density returned NaN or +inf at {self.num_invalid} evaluated points; they were "
                 "treated as zero density (rejected, or killed at once with weight zero)",
-                RuntimeWarning,
-                stacklevel=3,
+                RuntimeWarning
             )
         if self.num_uncovered:
-            warnings.warn(
+            warn(
                 f"{self.num_uncovered} steps reached states with positive target density where the "
                 "regeneration density is zero: tours there are never killed, so the regeneration "
                 "distribution must cover the target's support (widen it or add a defensive component)",
-                RuntimeWarning,
-                stacklevel=3,
+                RuntimeWarning
             )
         if self.num_negative_rate:
-            warnings.warn(
+            warn(
                 f"the kill rate was negative at {self.num_negative_rate} states: c_tilde is too small for these "
                 "dynamics there (the rate used was zero, so the process is not exactly invariant). Raise log_rate "
                 "(restore.minimal_log_rate searches for the smallest safe value)",
-                RuntimeWarning,
-                stacklevel=3,
+                RuntimeWarning
             )
         if self.num_bound_exceeded:
-            warnings.warn(
+            warn(
                 f"the kill rate exceeded the thinning bound at {self.num_bound_exceeded} candidate events (up to "
                 f"{self.max_bound_ratio:.3g} times the bound): those kills were too rare, so the process is not "
                 "exactly invariant. Raise the bound (restore.rate_bound searches a region for one)",
-                RuntimeWarning,
-                stacklevel=3,
+                RuntimeWarning
             )
         if self.has_tours and self.log_rate is not None:
             stats = self.tour_statistics()
             if stats.heavy_tailed:
-                warnings.warn(
-                    f"tour lengths are heavy-tailed (Pareto shape k_hat = {stats.k_hat:.2f}, limit {stats.k_limit:.2f}; "
-                    f"{stats.unfinished_tours} tours outlasted the run): "
-                    f"the longest 1% of tours hold {stats.longest_share:.0%} of the time and the {stats.num_tours} "
-                    f"tours are worth {stats.effective_num_tours:.1f} equal ones, so estimates are dominated by a few "
-                    "tours and their standard errors cannot be trusted. The regeneration distribution is far from the "
-                    "target: restore.autosample improves it in stages until the tours are healthy",
+                warn(
+                    f"tour-based estimates and their standard errors cannot be trusted: {heavy_tail_reasons(stats)}; "
+                    f"{self.advice}",
                     UnreliableEstimateWarning,
-                    stacklevel=3,
                 )
 
     def summary(self) -> str:
@@ -413,8 +422,8 @@ class SampleResult:
             f"{self.sampler_name}: {self.num_lanes} lanes x {self.num_steps} steps in {self.wall_time:.2f} s"
             + (" (interrupted)" if self.interrupted else ""),
             f"  acceptance rate {self.acceptance_rate:.3f}, invalid evaluations {self.num_invalid}",
-            f"  stored draws: {self.draws.shape[0]} per lane, every {self.thin}th step"
-            + (f" ({self.draws_note})" if self.draws_note else ""),
+            f"  stored draws: {self.draws.shape[0]} per lane, one every {self.thin} steps"
+            + (" (thinned to the draws budget: raise max_draws or set thin to keep more)" if self.draws_note else ""),
         ]
         if self.has_tours and self.log_rate is not None:
             stats = self.tour_statistics()
@@ -435,13 +444,16 @@ class SampleResult:
         return f"<SampleResult {self.sampler_name}: {self.num_lanes} lanes x {self.num_steps} steps>"
 
 
-def _warn_unreliable(what: str, estimate: Estimate) -> None:
+class ThinnedDrawsWarning(UserWarning):
+    """The draws a user works on were thinned to the draws budget (`max_draws`)."""
+
+
+def _warn_unreliable(what: str, estimate: Estimate, advice: str) -> None:
     """Say in plain words when an estimate's error bar cannot be trusted, and what to do."""
     if np.all(estimate.reliable):
         return
-    warnings.warn(
-        f"{what}: the standard error cannot be trusted: {unreliable_reason(estimate)}. Use a regeneration "
-        "distribution closer to the target (restore.autosample builds one in stages), or run longer",
-        UnreliableEstimateWarning,
-        stacklevel=3,
+    warn(
+        f"{what}: the standard error cannot be trusted: {unreliable_reason(estimate)}"
+        + ("" if estimate.k_limit < K_HAT_LIMIT else f"; {advice}"),  # too few terms: the reason says what to do
+        UnreliableEstimateWarning
     )

@@ -7,7 +7,6 @@ import logging
 import math
 import os
 import time
-import warnings
 from collections.abc import Callable, Mapping
 from typing import Literal
 
@@ -32,7 +31,6 @@ from ._checkpoint import (
 from ._compile import jit
 from ._driver import Budget, Meter, drive
 from ._observables import Observables
-from ._progress import console_note
 from ._result import SampleResult
 from ._run_loop import CarryShape, Chunk, RunCarry, advance, carry_shardings, finish, finishing_width, start_carry
 from ._sampler import AbstractSampler, check_sampler
@@ -49,7 +47,8 @@ from ._sharding import (
 from ._tails import tail_rows, tour_tails
 from ._threefry import unrolled_keys
 from ._trace import run_trace
-from ._validation import check_integer, check_interval
+from ._validation import check_integer, check_interval, check_key
+from ._warnings import warn
 
 Weights = Literal["rao_blackwell", "time"]
 
@@ -306,6 +305,7 @@ def sample(
         with Ctrl-C returns the result of the chunks completed so far (marked
         `interrupted`), after saving it to `checkpoint` if one is given.
     """
+    check_key(key)
     num_lanes, num_steps = check_integer(num_lanes, "num_lanes"), check_integer(num_steps, "num_steps")
     num_chunks, first_lane = check_integer(num_chunks, "num_chunks"), check_integer(first_lane, "first_lane", minimum=0)
     max_draws = check_integer(max_draws, "max_draws", minimum=0)
@@ -363,13 +363,11 @@ def sample(
     if thin_given is None and thin > 1 and stored > 0:
         draws_note = (
             f"thinned to the draws budget max_draws={max_draws:,}: {num_lanes:,} lanes x {num_steps:,} steps "
-            f"make {num_lanes * num_steps:,} states, so every {thin}th step of each lane is stored "
+            f"make {num_lanes * num_steps:,} states, so one state in every {thin} steps of each lane is stored "
             f"({stored * num_lanes:,} draws, {stored * num_lanes * dim * jnp.dtype(dtype).itemsize / 2**20:.3g} MiB); "
             "raise max_draws or set thin to keep more"
         )
-        logger.info(draws_note)
-        if progress:
-            console_note(draws_note)
+        logger.info(draws_note)  # said to the user when the draws are used (`SampleResult.note_thinning`)
 
     chunk = math.ceil(num_steps / min(num_chunks, num_steps))
     has_tours = sampler.has_tours
@@ -469,7 +467,7 @@ def sample(
     elapsed = lambda: spent + time.perf_counter() - session_start  # noqa: E731
     if interrupted:
         done = committed_steps  # the last chunk that finished
-        warnings.warn(f"interrupted after {done} of {num_steps} steps; returning the partial result", stacklevel=2)
+        warn(f"interrupted after {done} of {num_steps} steps; returning the partial result")
     if has_tours and not interrupted and finish_tours and not finished:
         budget_run = _copied(run)  # the finishing takes `run`'s buffers; Ctrl-C during it returns this
         try:
@@ -483,16 +481,15 @@ def sample(
             run, finishing_steps, unfinished = ended, extra, still_open
         except KeyboardInterrupt:  # keep the budget's result; its open tours are dropped
             run, interrupted = budget_run, True
-            warnings.warn("interrupted while finishing the open tours; returning the result without them", stacklevel=2)
+            warn("interrupted while finishing the open tours; returning the result without them")
     if saver is not None and not interrupted and not finished:
         saver.save(run, done=done, wall_time=elapsed(), finished=True, finishing_steps=finishing_steps, unfinished=unfinished)
     if unfinished:
-        warnings.warn(
+        warn(
             f"{unfinished} lanes still had an open tour after {finishing_steps} extra steps; those tours are "
             "left out of the tour-based estimates, which are therefore marked unreliable (tours can outlast the "
-            "run: the regeneration barely covers a region where the target has mass)",
-            RuntimeWarning,
-            stacklevel=2,
+            "run: the regeneration barely covers a region where the target has mass, or the density's mass is infinite)",
+            RuntimeWarning
         )
     wall_time = elapsed()
     host = to_host(run)  # numpy, gathered over devices (and processes)

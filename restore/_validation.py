@@ -223,3 +223,16 @@ def check_logdensity(
                 "jax.pure_callback or other code without a derivative rule?); use a gradient-free kernel "
                 f"such as restore.local.RandomWalk, or give logdensity a custom_jvp: {err}"
             ) from err
+
+
+def check_key(key: Any, name: str = "key") -> None:
+    """A JAX random key: a typed key (`jax.random.key(0)`) or a raw one (`jax.random.PRNGKey(0)`,
+    `uint32` of shape `(2,)`); anything else (an int seed, a batch of keys) is refused by name."""
+    if isinstance(key, jax.Array) and jnp.issubdtype(key.dtype, jax.dtypes.prng_key):
+        if key.shape != ():
+            raise ValueError(f"{name} must be one random key, got a batch of shape {key.shape}")
+        return
+    if isinstance(key, (jax.Array, np.ndarray)) and key.dtype == np.uint32 and key.shape == (2,):
+        return
+    shown = f"{key!r}" if isinstance(key, (int, float, str)) else f"{type(key).__name__} of shape {getattr(key, 'shape', '?')}"
+    raise TypeError(f"{name} must be a JAX random key such as jax.random.key(0), got {shown}")

@@ -19,7 +19,7 @@ from .._checkpoint import key_fingerprint, load_checkpoint, save_checkpoint
 from .._compile import compiler_options
 from .._driver import Budget, Meter, drive
 from .._threefry import unrolled_keys
-from .._validation import check_interval
+from .._validation import check_interval, check_key
 from ._pss import check_target
 from ._renderer import (
     AbstractRenderer,
@@ -195,6 +195,7 @@ def render(
                 f"({step_cost} evaluations with {lanes} lanes)"
             )
 
+    check_key(key)
     key_init, key_run = jax.random.split(key)
     state_shape = jax.eval_shape(lambda k: renderer.init(target, k, lanes), key_init)
     name = type(renderer).__name__

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import abc
 import math
-import warnings
 from typing import Any, ClassVar
 
 import equinox as eqx
@@ -25,6 +24,7 @@ from jaxtyping import Array, Float, Int, PRNGKeyArray
 
 from .._estimates import UnreliableEstimateWarning
 from .._point import Point
+from .._warnings import warn
 from ._film import film_image
 from ._pss import evaluate_points
 
@@ -169,7 +169,7 @@ class AbstractRenderer(eqx.Module):
         """Warn (`UnreliableEstimateWarning`) when the renderer's `tail_statistic` is above
         `TAIL_WARNING`: a few samples then decide the image."""
         if self.tail_statistic is not None and statistics.get(self.tail_statistic, math.nan) > TAIL_WARNING:
-            warnings.warn(self.tail_message(statistics), UnreliableEstimateWarning, stacklevel=3)
+            warn(self.tail_message(statistics), UnreliableEstimateWarning)
 
     def check(self, params) -> None:
         """Raise `ValueError` if `init` found the target unusable (host-side, concrete params)."""

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Callable
 from typing import NamedTuple
 
@@ -13,6 +12,7 @@ from jaxtyping import Array, PRNGKeyArray
 from scipy import stats
 
 from .._validation import check_integer
+from .._warnings import warn
 from ._fixed_time import simulate_to_time
 
 
@@ -156,12 +156,11 @@ def stationarity_test(
         num_steps=int(np.sum(run.steps)), num_bound_exceeded=run.num_bound_exceeded, num_negative_rate=run.num_negative_rate
     )
     if run.num_bound_exceeded or run.num_negative_rate:
-        warnings.warn(
+        warn(
             f"the simulated process was not the exact one: the kill rate exceeded the thinning bound at "
             f"{run.num_bound_exceeded} candidate events and was negative at {run.num_negative_rate} states, so "
             "this check tests an approximation (raise the bound, restore.rate_bound; or log_rate, "
             "restore.minimal_log_rate)",
-            RuntimeWarning,
-            stacklevel=2,
+            RuntimeWarning
         )
     return report

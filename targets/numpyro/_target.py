@@ -88,6 +88,7 @@ class NumPyroTarget:
         flat, self._unravel = ravel_pytree({n: jnp.zeros(free[n].shape, free[n].dtype) for n in self.names})
         self.dim: int = int(flat.shape[0])
         self._dtype = flat.dtype
+        self._x64 = bool(jax.config.read("jax_enable_x64"))  # the precision the data and transforms were built in
         self.sites: dict[str, tuple[int, ...]] = {n: tuple(v.shape) for n, v in jax.eval_shape(self._constrain_one, flat).items()}
         # Compiled once: running a model op by op compiles every operation separately.
         self._log_joint = jax.jit(lambda x: -potential_energy(self.model, self.model_args, self.model_kwargs, self._unravel(x)))
@@ -100,10 +101,22 @@ class NumPyroTarget:
         return self._log_joint(self._point(x))
 
     def _point(self, x: Array) -> Array:
+        self._check_precision()
         x = jnp.asarray(x)
         if x.shape != (self.dim,):
             raise ValueError(f"x must be one unconstrained point of shape ({self.dim},), got {x.shape}")
         return x
+
+    def _check_precision(self) -> None:
+        """Refuse to run in another precision than the one the target was built in (the model's
+        data and transforms keep their dtype: float32 numbers mixed into a float64 run fail deep
+        inside JAX with a dtype mismatch)."""
+        if bool(jax.config.read("jax_enable_x64")) != self._x64:
+            now, then = ("float64", "float32") if not self._x64 else ("float32", "float64")
+            raise RuntimeError(
+                f"this NumPyroTarget was built in {then} and JAX now computes in {now} (jax_enable_x64 was "
+                "switched after it was built): build the target after jax.config.update('jax_enable_x64', ...)"
+            )
 
     # ------------------------------------------------------------------ constrained values
     def constrain(self, x: ArrayLike) -> dict[str, Array]:
@@ -112,6 +125,7 @@ class NumPyroTarget:
         Returns a dict from site name to an array of shape `(..., *site_shape)`. Traceable,
         so it can be used inside observables.
         """
+        self._check_precision()
         x = jnp.asarray(x)
         if x.ndim == 0 or x.shape[-1] != self.dim:
             raise ValueError(f"x must have a last axis of length {self.dim} (unconstrained points), got shape {x.shape}")
@@ -185,6 +199,7 @@ class NumPyroTarget:
             num_draws: how many prior draws to summarise.
             df: the Student-t's degrees of freedom.
         """
+        self._check_precision()
         key = jax.random.key(0) if key is None else key
         draws = np.asarray(self.prior_draws(key, num_draws), np.float64)
         draws = draws[np.all(np.isfinite(draws), axis=1)]
