@@ -57,6 +57,15 @@ class TourStatistics(NamedTuple):
     k_limit: float = math.nan
     unfinished_tours: int = 0
 
+    def __str__(self) -> str:
+        """The statistics rounded to what they can tell (`repr` keeps every digit)."""
+        return (
+            f"TourStatistics({self.num_tours} tours, mean duration {self.mean_duration:.4g} +- {self.mean_duration_se:.2g} "
+            f"(expected 1/c = {self.expected_duration:.4g}), longest {self.max_duration:.4g}, effective tours "
+            f"{self.effective_num_tours:,.0f}, longest 1% hold {self.longest_share:.1%}, k_hat {self.k_hat:.2f} "
+            f"(limit {self.k_limit:.2f}), unfinished {self.unfinished_tours}, heavy-tailed: {self.heavy_tailed})"
+        )
+
 
 def longest_share(counts: np.ndarray, times: np.ndarray, fraction: float = 0.01) -> float:
     """Share of total time in the longest `fraction` of tours, from a duration histogram."""
