@@ -46,14 +46,16 @@ from ._compile import jit
 from ._coordinates import check_coordinates
 from ._jump_restore import JumpRestore
 from ._pareto import K_HAT_LIMIT
+from ._preconditioning import typical_scale_tril
 from ._progress import console_note
 from ._random import distribution_draws
 from ._result import SampleResult
 from ._sample import _draw_capacity, _thinning, sample
 from ._seeding import seed_draws
+from ._seeding_modes import laplace_candidates
 from ._validation import check_integer, check_key, check_logdensity
 from ._warnings import AUTOSAMPLE_ADVICE, advising
-from .local import AbstractLocalKernel, RandomWalk
+from .local import AbstractLocalKernel, CorrelatedRandomWalk, RandomWalk
 from .regeneration import (
     AbstractRegeneration,
     DiagonalMixture,
@@ -286,6 +288,15 @@ def typical_scale(regeneration: AbstractRegeneration) -> np.ndarray:
     return np.std(draws, axis=0)
 
 
+def default_kernel(regeneration: AbstractRegeneration, d: int, dtype) -> AbstractLocalKernel:
+    """Random-walk Metropolis scaled `2.38 / sqrt(d)` to the regeneration's typical component:
+    along its correlations when its components have full covariances, else axis by axis."""
+    tril = typical_scale_tril(regeneration, typical_scale(regeneration))
+    if tril is not None:
+        return CorrelatedRandomWalk(jnp.asarray(2.38 / math.sqrt(d) * tril, dtype))
+    return RandomWalk(jnp.asarray(2.38 / math.sqrt(d) * typical_scale(regeneration), dtype))
+
+
 def _weighted_median(values: np.ndarray, weights: np.ndarray) -> np.ndarray:
     """Per column of `values` `(K, d)`, the median under the weights `(K,)`."""
     order = np.argsort(values, axis=0)
@@ -339,6 +350,7 @@ def autosample(
     tour_length: float = 5.0,
     local: AbstractLocalKernel | None = None,
     families: Sequence[str] = FAMILIES,
+    laplace: bool = True,
     defensive: float = 0.1,
     max_stages: int = 6,
     stage_steps: int | None = None,
@@ -371,9 +383,13 @@ def autosample(
         tour_length: mean tour duration `T` of every run.
         local: the local kernel (default: random-walk Metropolis with scale
             `2.38 / sqrt(d)` times the typical within-component standard deviation of
-            each stage's regeneration).
+            each stage's regeneration, along the components' correlations when they have
+            full covariances: `typical_scale_tril`).
         families: the regeneration families to choose from (see
             `restore.regeneration.choose_regeneration`).
+        laplace: also offer, at every stage, Laplace approximations (Student-t tails) at
+            the modes that optimisation from the seeding chains' last states finds (when
+            the log density has a gradient and modes are found).
         defensive: weight of the defensive component in every regeneration.
         max_stages: most Restore stages before the final run.
         stage_steps: steps per lane of each stage (default `max(100, num_steps // 4)`).
@@ -414,6 +430,10 @@ def autosample(
     stages = [seed_report]
     say(f"autosample: {num_lanes} seeding chains, {'MALA' if seeds.uses_gradient else 'random walk'}, acceptance {seeds.acceptance:.2f}")
     draws, weights, groups = seeds.positions, np.ones(len(seeds.positions)), seeds.chains
+    extra, mode_evaluations = laplace_candidates(logdensity, seeds, d) if laplace else ((), 0)
+    if mode_evaluations:
+        stages[0] = seed_report._replace(evaluations=seeds.evaluations + mode_evaluations, wall_time=time.perf_counter() - clock)
+        say(f"autosample: {max((f.num_components for f in extra), default=0)} modes found by optimisation from the seeding chains")
 
     sizes = _program_sizes(logdensity, d, dtype)
 
@@ -424,7 +444,7 @@ def autosample(
         return Mixture([fit.padded(size), defend], jnp.asarray([1.0 - defensive, defensive], dtype))
 
     def sampler_for(u, log_z):
-        kernel = local if local is not None else RandomWalk(jnp.asarray(2.38 / math.sqrt(d) * typical_scale(u.components[0]), dtype))
+        kernel = local if local is not None else default_kernel(u.components[0], d, dtype)
         sampler = JumpRestore(logdensity, kernel, u, tour_length=tour_length)
         if log_z is None:
             return sampler, True
@@ -446,7 +466,7 @@ def autosample(
     log_z = None
     for stage in range(1, max_stages + 1):
         clock = time.perf_counter()
-        choice = choose_regeneration(draws, weights, groups, families=families, seed=stage, sizes=sizes)
+        choice = choose_regeneration(draws, weights, groups, families=families, seed=stage, sizes=sizes, extra=extra)
         u = regeneration_from(choice.fit)
         sampler, piloted = sampler_for(u, log_z)
         with warnings.catch_warnings():

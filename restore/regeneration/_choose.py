@@ -92,6 +92,7 @@ def choose_regeneration(
     max_draws: int = 100_000,
     mixture_draws: int = 8192,
     sizes: Mapping[str, int] | None = None,
+    extra: Sequence[Fit] = (),
     seed: int = 0,
 ) -> Choice:
     """Fit each family with 1, 2, 4, ... components and keep the best by held-out likelihood.
@@ -117,6 +118,9 @@ def choose_regeneration(
             it (`padded_size`) costs as much as that many components, so among those the
             best scoring one is chosen; and any other candidate must score `RECOMPILE_GAIN`
             nats better than the best of those to be chosen.
+        extra: fits made elsewhere (e.g. `laplace_fit` of a target's modes), scored on the
+            same held-out draws and chosen by the same rules; chosen, one is returned as it
+            is (it was not fitted to these draws, so it is not refitted).
         seed: seed of the split, the subsets and the initialisations.
 
     Returns:
@@ -141,7 +145,7 @@ def choose_regeneration(
     held = rng.choice(labels, max(1, round(holdout * labels.size)), replace=False)
     test = np.isin(g, held)
     train, scored = _at_most(np.flatnonzero(~test), mixture_draws, rng), _at_most(np.flatnonzero(test), mixture_draws, rng)
-    max_cost = max(4096, 64 * d) if max_cost is None else int(max_cost)
+    max_cost = default_max_cost(d) if max_cost is None else int(max_cost)
     sizes = dict(sizes or {})
 
     def cost(family: str, k: int) -> int:
@@ -187,6 +191,16 @@ def choose_regeneration(
             if k >= 4 and ahead - score > HOPELESS * gain * doublings + tolerance:
                 break  # even gains several times its best so far would leave this family behind
             k *= 2
+    given = {}
+    for fit in extra:
+        logp = fit.log_prob(x[scored])
+        score = float(np.sum(w[scored] * logp) / np.sum(w[scored])) if np.all(np.isfinite(logp)) else -math.inf
+        k = fit.num_components
+        size = padded_size(k, sizes.get(fit.family))
+        candidate = Candidate(fit.family, k, fit.cost * size // k, score)
+        if candidate.cost <= max_cost and math.isfinite(score):
+            candidates.append(candidate)
+            given[candidate] = fit
     if not candidates:
         raise ValueError("no regeneration family could be fitted to these draws")
     admissible = candidates
@@ -196,12 +210,19 @@ def choose_regeneration(
         admissible = [c for c in candidates if c in free or c.score >= bar]
     best = max(c.score for c in admissible)
     chosen = min((c for c in admissible if c.score >= best - tolerance), key=lambda c: (c.cost, -c.score))
+    if chosen in given:
+        return Choice(given[chosen], tuple(candidates))
     family = next(f for f in families if _fit_name(f) == chosen.family)
     k = chosen.num_components
     # Refitted to all the draws it may use, started from the candidate.
     every = np.arange(x.shape[0]) if family == "product" else _at_most(np.arange(x.shape[0]), mixture_draws, rng)
     fit = _fit(family, x[every], w[every], k, seed, start=fits[family, k], binned=binned.get("all"))
     return Choice(fit, tuple(candidates))
+
+
+def default_max_cost(d: int) -> int:
+    """The largest cost (multiply-adds per log density) a candidate may have by default."""
+    return max(4096, 64 * int(d))
 
 
 def padded_size(num_components: int, size: int | None) -> int:

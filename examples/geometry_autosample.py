@@ -1,0 +1,109 @@
+"""`restore.autosample` on correlated and ill-conditioned targets with an exact `log Z`.
+
+Two instances, each with fixed seeds and the box a user would state:
+
+- `gauss50`: a 50-d Gaussian whose covariance has eigenvalues log-spaced over [1e-2, 1e2]
+  (condition number 1e4) under a random rotation, log density shifted so that `log Z = 2.5`;
+- `manywell16`: the 16-d Many Well (`targets.analytic.ManyWell`) seen through a random
+  rotation, `x -> Q^T x` (the rotation keeps `log Z`).
+
+Each is run with `autosample`'s defaults (1,024 lanes, 1,000 steps); the script prints the
+`log Z` error, its standard error, `|error| / SE`, whether the estimate is marked reliable, the
+worst moment z-score (of `x` and `x**2` against the exact moments), the stages and the wall time.
+
+Usage: python examples/geometry_autosample.py [--problems gauss50,manywell16] [--seed 0]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import time
+import warnings
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+
+import restore  # noqa: E402
+
+
+def rotation(d: int, seed: int) -> np.ndarray:
+    """A random rotation `(d, d)` (QR of a Gaussian matrix, signs fixed)."""
+    q, r = np.linalg.qr(np.random.default_rng(seed).standard_normal((d, d)))
+    return q * np.sign(np.diag(r))
+
+
+def gauss50():
+    """The rotated ill-conditioned Gaussian: log density, box, log Z, mean, second moment."""
+    d, log_z = 50, 2.5
+    q = rotation(d, 11)
+    cov = q @ np.diag(np.logspace(-2, 2, d)) @ q.T
+    mean = np.random.default_rng(12).uniform(-3, 3, d)
+    precision = jnp.asarray(np.linalg.inv(cov))
+    constant = log_z - 0.5 * np.linalg.slogdet(2 * math.pi * cov)[1]
+    m = jnp.asarray(mean)
+
+    def logdensity(x):
+        r = x - m
+        return -0.5 * r @ precision @ r + constant
+
+    return logdensity, 40.0, log_z, mean, np.diag(cov) + mean**2
+
+
+def manywell16():
+    """The rotated 16-d Many Well: log density, box, log Z, mean, second moment."""
+    from targets.analytic import ManyWell
+
+    target = ManyWell(16)
+    q = rotation(16, 21)
+    qj = jnp.asarray(q)
+    mean = q @ np.asarray(target.mean, np.float64)
+    cov = q @ np.asarray(target.covariance, np.float64) @ q.T
+    logdensity = lambda x: target.logdensity(qj.T @ x)  # noqa: E731
+    return logdensity, 8.0, float(target.log_normalising_constant), mean, np.diag(cov) + mean**2
+
+
+PROBLEMS = {"gauss50": gauss50, "manywell16": manywell16}
+
+
+def run(name: str, seed: int) -> dict:
+    logdensity, half, log_z, mean, second = PROBLEMS[name]()
+    d = mean.shape[0]
+    clock = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        out = restore.autosample(logdensity, jax.random.key(seed), box=(-half, half), dim=d, progress=False)
+        estimate = out.normalising_constant()
+        z_mean = np.asarray(out.estimate("x").z_score(mean))
+        z_second = np.asarray(out.estimate("x**2").z_score(second))
+    seconds = time.perf_counter() - clock
+    error, se = float(estimate.value) - log_z, float(estimate.standard_error)
+    return dict(
+        problem=name, seed=seed, error=error, se=se, z=abs(error) / se, reliable=bool(estimate.reliable),
+        moment_z=float(np.max(np.abs(np.concatenate([z_mean, z_second])))), seconds=seconds,
+        stages=len(out.stages) - 2, final=f"{out.stages[-1].family} x{out.stages[-1].num_components}",
+        evaluations=out.evaluations, healthy=out.healthy,
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--problems", default="gauss50,manywell16")
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+    print("problem     seed  log Z error       SE   |err|/SE  reliable  worst moment z  stages  final regeneration         evaluations  wall s")
+    for name in args.problems.split(","):
+        r = run(name, args.seed)
+        print(
+            f"{r['problem']:<11} {r['seed']:>4} {r['error']:>+12.4f} {r['se']:>8.4f} {r['z']:>10.1f}  {str(r['reliable']):<8}"
+            f"  {r['moment_z']:>14.1f}  {r['stages']:>6}  {r['final']:<26} {r['evaluations']:>11,}  {r['seconds']:>6.1f}",
+            flush=True,
+        )
+
+
+if __name__ == "__main__":
+    main()
