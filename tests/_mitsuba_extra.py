@@ -6,6 +6,8 @@ the wrong one, so the Mitsuba test modules check with `find_spec` only.
 
 import importlib.util
 
+import pytest
+
 
 def mitsuba_extra_installed() -> bool:
     try:
@@ -28,3 +30,13 @@ def xml_scene(width: int, height: int, max_depth: int, rfilter: str = "gaussian"
     <emitter type="area"><rgb name="radiance" value="1"/></emitter></shape>
 </scene>
 """
+
+
+def mitsuba_or_skip():
+    """Mitsuba with its CPU variant, or a skip whose reason says that libLLVM is missing."""
+    from targets.mitsuba import LLVMNotFoundError, load_mitsuba
+
+    try:
+        return load_mitsuba("llvm_ad_rgb")
+    except LLVMNotFoundError as err:
+        pytest.skip(f"Mitsuba is installed but its CPU variant cannot run: libLLVM is missing. {err}")
