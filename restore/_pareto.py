@@ -101,9 +101,11 @@ def pareto_k(largest: np.ndarray, n: int) -> float:
     if not np.all(np.isfinite(top)):
         raise ValueError("pareto_k needs finite values")
     top = top[: tail_length(n) + 1]
-    threshold = top[-1]
-    exceedances = top[:-1] - threshold
-    if not exceedances[0] > 0:  # a flat top: no tail at all
+    # Values tied with the threshold (durations and integrals on a lattice of holding times)
+    # are not exceedances: zeros would read as a heavy tail.
+    exceedances = top[:-1] - top[-1]
+    exceedances = exceedances[exceedances > 0]
+    if exceedances.size < 5:  # a flat top: no tail at all
         return 0.0
     return gpd_shape(exceedances)
 

@@ -55,6 +55,16 @@ def test_pareto_k_separates_light_from_infinite_variance_tails():
     assert math.isnan(pareto_k(rng.exponential(size=10), 10))  # too few to fit
 
 
+def test_values_on_a_lattice_keep_their_light_tail():
+    """Tour durations and integrals are sums of equal holding times, so the largest values tie. Ties with
+    the threshold are not exceedances: counted as zeros (the planted defect), they read as k_hat near 1."""
+    rng = np.random.default_rng(1)
+    n = 4000
+    lattice = 0.75 * rng.geometric(0.5, size=n)  # light (geometric) tail on steps of 0.75, many tied at the threshold
+    assert pareto_k(lattice, n) < 0.2
+    assert 0.6 < pareto_k(np.ceil(rng.pareto(1 / 0.8, size=n)), n) < 1.0  # a heavy tail on a lattice stays heavy
+
+
 def test_k_hat_limit():
     assert k_hat_limit(10**6) == restore.K_HAT_LIMIT == 0.5
     assert k_hat_limit(100) == pytest.approx(0.5)
