@@ -7,6 +7,7 @@ import restore
 from restore.local import MALA, RandomWalk
 from restore.testing import calibration_test, ergodicity_test
 from tests._models import (
+    UnadjustedRandomWalk,
     banana,
     broad_regeneration,
     laplace_regeneration,
@@ -44,6 +45,19 @@ def test_banana_with_mala_and_time_weights():
     truths = {"x": (lambda x: x, target.mean), "x**2": (lambda x: x**2, second_moments(target))}
     report = ergodicity_test(sampler, jax.random.key(32), truths, num_lanes=512, num_steps=1500, log_z=LOG_Z, weights="time")
     assert report.passed, (str(report), report.p_values)
+
+
+def test_a_kernel_that_does_not_leave_the_target_invariant_fails_ergodicity():
+    """Negative control: a random walk that accepts every move biases moments and mode weights."""
+    target = mixture_2d()
+    sampler = restore.JumpRestore(_unnormalised(target), UnadjustedRandomWalk(1.2), laplace_regeneration(target), tour_length=2.0)
+    truths = {
+        "modes": (mode_indicator(target), target.weights),
+        "x": (lambda x: x, target.mean),
+        "x**2": (lambda x: x**2, second_moments(target)),
+    }
+    report = ergodicity_test(sampler, jax.random.key(36), truths, num_lanes=256, num_steps=1000, log_z=LOG_Z)
+    assert not report.passed, (str(report), report.p_values)
 
 
 def test_erratum_c_read_as_the_expected_lifetime_fails_the_tour_length_check():
