@@ -14,7 +14,7 @@ charged to it. It prints the wall time of each call, the compile time inside it,
 `log Z` error against the exact value, autosample's standard error, `|error| / SE` and
 whether the estimate is marked reliable, and the ratio of wall times autosample / SMC.
 
-Then, per autosample call, where the time went: each part (the seeding chains, every
+Then, per autosample call, where the time went: each part (the seeding chains, the mode search, every
 choice of a regeneration, every `restore.sample` run) with its wall time, the programs XLA
 compiled in it (from JAX's compile events) and their compile time, and the stages'
 reports.
@@ -57,7 +57,7 @@ class Profile:
     """Where an autosample call's time went: timed parts (wrapped functions of `restore._autosample`)
     and the XLA compilations inside each (JAX's backend-compile events, by the time they ended)."""
 
-    PARTS = ("seed_draws", "choose_regeneration", "sample")
+    PARTS = ("seed_draws", "laplace_candidates", "choose_regeneration", "sample")
 
     def __init__(self) -> None:
         self.parts: list[tuple[str, float, float]] = []  # (name, start, end), perf_counter

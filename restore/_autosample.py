@@ -433,7 +433,7 @@ def autosample(
     extra, mode_evaluations = laplace_candidates(logdensity, seeds, d) if laplace else ((), 0)
     if mode_evaluations:
         stages[0] = seed_report._replace(evaluations=seeds.evaluations + mode_evaluations, wall_time=time.perf_counter() - clock)
-        say(f"autosample: {max((f.num_components for f in extra), default=0)} modes found by optimisation from the seeding chains")
+        say(f"autosample: Laplace candidates at the modes found from the seeding chains ({max((f.num_components for f in extra), default=0)} components)")
 
     sizes = _program_sizes(logdensity, d, dtype)
 
