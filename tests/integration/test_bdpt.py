@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tests._mitsuba_extra import mitsuba_extra_installed
+from tests._mitsuba_extra import mitsuba_extra_installed, mitsuba_or_skip
 
 if not mitsuba_extra_installed():
     pytest.skip("the `mitsuba` extra is not installed", allow_module_level=True)
@@ -27,11 +27,9 @@ import jax
 import jax.numpy as jnp
 
 from targets.mitsuba import (
-    LLVMNotFoundError,
     MultiplexedBDPT,
     UnsupportedSceneError,
     cornell_box,
-    load_mitsuba,
     render_native,
 )
 from targets.mitsuba._multiplex import depth_pmf, select_pairs, strategy_pairs, strategy_pmf
@@ -43,10 +41,7 @@ RES = 16
 
 @pytest.fixture(scope="module")
 def mi():
-    try:
-        return load_mitsuba("llvm_ad_rgb")
-    except LLVMNotFoundError as err:
-        pytest.skip(str(err))
+    return mitsuba_or_skip()
 
 
 @pytest.fixture(scope="module")

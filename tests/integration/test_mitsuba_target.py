@@ -373,6 +373,17 @@ def test_find_libllvm_explains_what_to_install(monkeypatch, tmp_path):
     assert isinstance(info.value, RuntimeError)
 
 
+def test_a_missing_libllvm_is_named_in_the_skip_reason(monkeypatch):
+    import targets.mitsuba
+
+    def missing(variant):
+        raise LLVMNotFoundError("Dr.Jit's CPU backend needs a shared libLLVM")
+
+    monkeypatch.setattr(targets.mitsuba, "load_mitsuba", missing)
+    with pytest.raises(pytest.skip.Exception, match="libLLVM is missing"):
+        mitsuba_or_skip()
+
+
 def test_find_libllvm_search_order(monkeypatch, tmp_path):
     for name in ("libLLVM-15.so", "libLLVM.so.19.1", "libLLVM-17.so"):
         (tmp_path / name).write_bytes(b"")

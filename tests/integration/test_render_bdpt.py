@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 
 from tests._image_agreement import LUMINANCE, agreement_z, failures
-from tests._mitsuba_extra import mitsuba_extra_installed
+from tests._mitsuba_extra import mitsuba_extra_installed, mitsuba_or_skip
 
 if not mitsuba_extra_installed():
     pytest.skip("the `mitsuba` extra is not installed", allow_module_level=True)
@@ -32,7 +32,7 @@ import jax.numpy as jnp
 
 import restore.render as rr
 from restore.render._methods import make_renderer
-from targets.mitsuba import LLVMNotFoundError, MultiplexedBDPT, load_mitsuba, render_native
+from targets.mitsuba import MultiplexedBDPT, render_native
 from targets.mitsuba._jax_bridge import pixel_index_jax
 
 RES, DEPTH = 16, 3
@@ -41,10 +41,7 @@ R, LANES, STEPS = 16, 256, 500  # 16 renders of 16384 bootstrap + 128000 evaluat
 
 @pytest.fixture(scope="module")
 def target():
-    try:
-        load_mitsuba("llvm_ad_rgb")
-    except LLVMNotFoundError as err:
-        pytest.skip(str(err))
+    mitsuba_or_skip()
     return MultiplexedBDPT("cornell_box", resolution=(RES, RES), max_depth=DEPTH, bootstrap=2000)
 
 

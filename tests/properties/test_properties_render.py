@@ -23,7 +23,7 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from tests._mitsuba_extra import mitsuba_extra_installed
+from tests._mitsuba_extra import mitsuba_extra_installed, mitsuba_or_skip
 
 if not mitsuba_extra_installed():
     pytest.skip("the `mitsuba` extra is not installed", allow_module_level=True)
@@ -31,7 +31,7 @@ if not mitsuba_extra_installed():
 from typer.testing import CliRunner  # noqa: E402
 
 from restore.cli import app  # noqa: E402
-from targets.mitsuba import LLVMNotFoundError, PrimarySampleSpace, UnsupportedSceneError, load_mitsuba, load_scene  # noqa: E402
+from targets.mitsuba import PrimarySampleSpace, UnsupportedSceneError, load_scene  # noqa: E402
 
 SCENES = settings(derandomize=True, database=None, deadline=None, max_examples=15,
                   suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
@@ -52,10 +52,7 @@ SCENE = b"""<scene version="3.0.0">
 
 @pytest.fixture(scope="module")
 def mi():
-    try:
-        return load_mitsuba("llvm_ad_rgb")
-    except LLVMNotFoundError as err:
-        pytest.skip(str(err))
+    return mitsuba_or_skip()
 
 
 @pytest.fixture(scope="module")
