@@ -172,7 +172,8 @@ class SampleResult:
                 default for Restore samplers) or `"lanes"` (lanes as independent
                 replicates, incomplete tours included; the default for MH).
             lanes: optional index (slice, integer array or mask) of the lanes to use,
-                e.g. to form independent replications from one run.
+                e.g. to form independent replications from one run. Its `k_hat` is at least
+                the whole run's (`_run_shape`).
         """
         slot = self.observables.slot(name)
         cut = slice(slot.start, slot.start + slot.size)
@@ -183,6 +184,8 @@ class SampleResult:
             n = int(np.sum(pick(s.num_tours)))
             tails = self.tails if lanes is None else select_lanes(self.tails, lanes, self.num_lanes)
             k_hat = np.array([residual_k(tails, slot.start + j, float(v), n) for j, v in enumerate(est.value.reshape(-1))])
+            if lanes is not None:
+                k_hat = np.fmax(k_hat, np.ravel(self._run_shape(name, lambda: self.estimate(name, method))))
             est = est._replace(k_hat=k_hat, k_limit=k_hat_limit(n), caveat=self._open_tours_caveat(lanes))
         else:
             est = lane_ratio(pick(s.all_f)[:, cut], pick(s.all_t))
@@ -241,6 +244,8 @@ class SampleResult:
                 sd = math.sqrt(max(T2 / n - mean**2, 0.0) * n / (n - 1))
                 rel_se = sd / (mean * math.sqrt(n))
                 k_hat, k_limit = duration_k(tails, int(n)), k_hat_limit(n)
+                if lanes is not None:
+                    k_hat = float(np.fmax(k_hat, self._run_shape("log Z", lambda: self.normalising_constant())))
             else:
                 lane_est = lane_ratio(s.sum_t, s.num_tours)
                 rel_se, k_hat, k_limit = float(lane_est.standard_error) / mean, lane_est.k_hat, lane_est.k_limit
@@ -254,6 +259,20 @@ class SampleResult:
             raise ValueError(f"method must be 'tours' or 'importance', got {method!r}")
         _warn_unreliable(f"log Z ({method})", est, self.advice)
         return est
+
+    def _run_shape(self, key: str, whole_run) -> np.ndarray:
+        """The `k_hat` of the whole run's estimate `whole_run()`, the floor of the `k_hat` of any group of its lanes.
+
+        The tail shape is a property of the sampler, which every lane shares: the whole run's
+        largest tours estimate it far better than one group's, and a group that met none of the
+        long tours looks lighter than it is (its estimate is then also the most wrong).
+        """
+        cache = self.__dict__.setdefault("_run_shapes", {})
+        if key not in cache:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", UnreliableEstimateWarning)
+                cache[key] = np.asarray(whole_run().k_hat, np.float64)
+        return cache[key]
 
     def _open_tours_caveat(self, lanes=None) -> str:
         """Tours still running at the end were left out: their (long) time is missing from the tours."""
