@@ -387,8 +387,8 @@ def autosample(
             full covariances: `typical_scale_tril`).
         families: the regeneration families to choose from (see
             `restore.regeneration.choose_regeneration`).
-        laplace: also offer, at every stage, Laplace approximations (Student-t tails) at
-            the modes that optimisation from the seeding chains' last states finds (when
+        laplace: also offer, at every stage, Laplace approximations (Gaussian and
+            Student-t components) at the modes that optimisation from the seeding chains' last states finds (when
             the log density has a gradient and modes are found).
         defensive: weight of the defensive component in every regeneration.
         max_stages: most Restore stages before the final run.

@@ -148,6 +148,11 @@ def choose_regeneration(
     max_cost = default_max_cost(d) if max_cost is None else int(max_cost)
     sizes = dict(sizes or {})
 
+    def held_out_score(fit: Fit) -> float:
+        """The weighted mean log density of the held-out draws under `fit` (`-inf` where it vanishes)."""
+        logp = fit.log_prob(x[scored])
+        return float(np.sum(w[scored] * logp) / np.sum(w[scored])) if np.all(np.isfinite(logp)) else -math.inf
+
     def cost(family: str, k: int) -> int:
         return _cost(family, padded_size(k, sizes.get(_fit_name(family))), d)
 
@@ -178,8 +183,7 @@ def choose_regeneration(
             except (ValueError, np.linalg.LinAlgError):
                 break
             start = None
-            logp = fit.log_prob(x[scored])
-            score = float(np.sum(w[scored] * logp) / np.sum(w[scored])) if np.all(np.isfinite(logp)) else -math.inf
+            score = held_out_score(fit)
             candidates.append(Candidate(fit.family, k, cost(family, k), score))
             fits[family, k] = fit
             if score < best_here + tolerance / 4:  # no longer improving: larger K will not either
@@ -193,8 +197,7 @@ def choose_regeneration(
             k *= 2
     given = {}
     for fit in extra:
-        logp = fit.log_prob(x[scored])
-        score = float(np.sum(w[scored] * logp) / np.sum(w[scored])) if np.all(np.isfinite(logp)) else -math.inf
+        score = held_out_score(fit)
         k = fit.num_components
         size = padded_size(k, sizes.get(fit.family))
         candidate = Candidate(fit.family, k, fit.cost * size // k, score)
