@@ -84,7 +84,7 @@ def _assert_agree(z: dict[str, np.ndarray]) -> None:
 def _assert_disagree(z: dict[str, np.ndarray]) -> None:
     """A planted defect fails the comparison by a wide margin, block by block."""
     assert "per-block mean z^2" in " ".join(failures(z)), failures(z)
-    assert np.mean(z["block"] ** 2) > 100, failures(z)
+    assert np.mean(z["block"] ** 2) > 25, failures(z)  # ten times the limit
 
 
 def test_uniform_pss_matches_native_cornell_box(cornell):
