@@ -8,7 +8,7 @@ import pytest
 
 import restore
 from restore.dynamics import BrownianMotion
-from restore.local import HMC, MALA, BlackJAXKernel, RandomWalk, metropolis_accept
+from restore.local import HMC, MALA, BlackJAXKernel, CorrelatedRandomWalk, RandomWalk, metropolis_accept
 from restore.regeneration import Gaussian
 from restore.testing import stationarity_test
 from tests._models import (
@@ -43,7 +43,13 @@ LOCALS = {
     "rw": lambda d: RandomWalk(2.0 / np.sqrt(d)),
     "mala": lambda d: MALA(0.6 / d**0.33),
     "hmc": lambda d: HMC(0.4, 4),
+    "correlated_rw": lambda d: CorrelatedRandomWalk(_correlated_factor(d)),
 }
+
+
+def _correlated_factor(d: int) -> np.ndarray:
+    """`2 / sqrt(d)` times the Cholesky factor of a correlation matrix with 0.6 off the diagonal."""
+    return 2.0 / np.sqrt(d) * np.linalg.cholesky(0.4 * np.eye(d) + 0.6 * np.ones((d, d)))
 
 
 @pytest.mark.parametrize("kernel", LOCALS)
@@ -96,6 +102,22 @@ def test_non_invariant_local_kernel_presented_as_invariant_fails():
     target = mixture_2d()
     sampler = jump_restore(target, UnadjustedRandomWalk(1.0), laplace_regeneration(target), tour_length=5.0)
     report = _check(sampler, target, jax.random.key(23), num_lanes=5000)
+    assert not report.passed and report.min_p_value < 1e-10, str(report)
+
+
+class DriftingCorrelatedWalk(CorrelatedRandomWalk):
+    """Negative control: a correlated walk with a drift along its first axis, accepted by Metropolis's
+    symmetric test (the reverse proposal's density left out)."""
+
+    def propose(self, key, point, logdensity_fn):
+        y, aux = super().propose(key, point, logdensity_fn)
+        return y + 0.3 * self.scale_tril[:, 0], aux
+
+
+def test_a_correlated_walk_with_an_asymmetric_proposal_fails():
+    target = mixture_2d()
+    sampler = jump_restore(target, DriftingCorrelatedWalk(_correlated_factor(2)), laplace_regeneration(target), tour_length=5.0)
+    report = _check(sampler, target, jax.random.key(29), num_lanes=5000)
     assert not report.passed and report.min_p_value < 1e-10, str(report)
 
 
