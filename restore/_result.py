@@ -298,7 +298,8 @@ class SampleResult:
         try:  # the requested tour length, if any, corrected for the pilot's error in Z
             with warnings.catch_warnings():  # a statistic of the tours, not the user's estimate of Z
                 warnings.simplefilter("ignore", UnreliableEstimateWarning)
-                expected = math.exp(float(self.normalising_constant("importance").value) - self.tour_log_rate)
+                log_expected = float(self.normalising_constant("importance").value) - self.tour_log_rate
+            expected = math.exp(log_expected) if not log_expected >= math.log(np.finfo(np.float64).max) else math.inf
         except ValueError:
             expected = math.nan
         s = self.sums

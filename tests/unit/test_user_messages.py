@@ -154,3 +154,13 @@ def test_thinned_draws_are_noted_once_at_the_users_line_when_used():
         result.to_arviz()
     assert [w.category for w in caught] == [restore.ThinnedDrawsWarning]
     assert caught[0].filename == __file__ and "one state in every 4 steps" in str(caught[0].message)
+
+
+def test_tour_statistics_survive_an_expected_duration_beyond_float64():
+    """`exp(log Z - log c)` overflowed (an `OverflowError` ended a 50-d autosample run)."""
+    import dataclasses
+
+    sampler = restore.JumpRestore(std_normal, RandomWalk(1.0), Gaussian(jnp.zeros(2), 2.0), log_rate=0.0)
+    result = restore.sample(sampler, jax.random.key(0), num_lanes=8, num_steps=100, progress=False)
+    stats = dataclasses.replace(result, log_rate=-800.0, expected_tour_times=None).tour_statistics()
+    assert stats.expected_duration == math.inf and stats.num_tours > 0
