@@ -21,7 +21,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 FENCE = re.compile(r"```(\w+)\n(.*?)```", re.S)
 SKIP = re.compile(r"<!--\s*docs-test:\s*skip,\s*[^>]*\S\s*-->\s*$")
-NUMBER = r"[-+]?(?:nan|inf|(?:\d{1,3}(?:,\d{3})+|\d+)(?:\.\d+)?(?:e[-+]?\d+)?)"
+NUMBER = r"[-+]?(?:\b(?:nan|inf)\b|(?:\d{1,3}(?:,\d{3})+|\d+)(?:\.\d+)?(?:e[-+]?\d+)?)"
 PROGRESS_BAR = "\u2501"
 TOKEN = re.compile(rf"(?P<time>{NUMBER})(?= ?s\b)|(?P<number>{NUMBER})")
 
@@ -75,8 +75,8 @@ def disagreements(shown: str, printed: str) -> list[str]:
     found = []
     for (kind, a), (_, b) in zip(shown_numbers, printed_numbers, strict=True):
         x, y = _value(a), _value(b)
-        if math.isnan(x) or math.isnan(y):
-            ok = math.isnan(x) and math.isnan(y)
+        if math.isnan(x) or math.isnan(y) or math.isinf(x) or math.isinf(y):
+            ok = (math.isnan(x) and math.isnan(y)) or x == y
         elif kind == "time":
             ok = y > 0 and x / 5 <= y <= 5 * x
         else:

@@ -14,7 +14,7 @@ from tests.docs._shown_output import ROOT, SKIP, examples, page_problems
 
 PAGES = sorted((ROOT / "docs" / "how-to").glob("*.md"))
 #: Pages with a block that cannot run as it stands and is not yet marked in the page.
-UNMARKED = {"regeneration.md": "its first block is a fragment (`logdensity`, `lower`, `upper` are the reader's)"}
+UNMARKED: dict[str, str] = {}
 #: Pages whose examples need an optional extra.
 EXTRAS = {"render.md": ("mitsuba", "drjit"), "local-kernels.md": ("blackjax",), "diagnostics.md": ("numpyro", "arviz")}
 
