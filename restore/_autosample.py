@@ -291,10 +291,11 @@ def typical_scale(regeneration: AbstractRegeneration) -> np.ndarray:
 def default_kernel(regeneration: AbstractRegeneration, d: int, dtype) -> AbstractLocalKernel:
     """Random-walk Metropolis scaled `2.38 / sqrt(d)` to the regeneration's typical component:
     along its correlations when its components have full covariances, else axis by axis."""
-    tril = typical_scale_tril(regeneration, typical_scale(regeneration))
+    scales = typical_scale(regeneration)
+    tril = typical_scale_tril(regeneration, scales)
     if tril is not None:
         return CorrelatedRandomWalk(jnp.asarray(2.38 / math.sqrt(d) * tril, dtype))
-    return RandomWalk(jnp.asarray(2.38 / math.sqrt(d) * typical_scale(regeneration), dtype))
+    return RandomWalk(jnp.asarray(2.38 / math.sqrt(d) * scales, dtype))
 
 
 def _weighted_median(values: np.ndarray, weights: np.ndarray) -> np.ndarray:

@@ -102,6 +102,7 @@ class SampleResult:
     trace: RunTrace | None = None
     advice: str = SAMPLE_ADVICE
     _thinning_noted: bool = dataclasses.field(default=False, init=False, repr=False)
+    _run_shapes: dict[str, np.ndarray] = dataclasses.field(default_factory=dict, init=False, repr=False)  # `_run_shape`
 
     @classmethod
     def from_run(cls, *, sampler: AbstractSampler, pilot, observables: Observables, sums, histogram, tails, draws, draw_weights, final_state, num_steps, finishing_steps, thin, weights, wall_time, interrupted, draws_note=None, unfinished_tours=0, trace=None) -> SampleResult:
@@ -267,12 +268,11 @@ class SampleResult:
         largest tours estimate it far better than one group's, and a group that met none of the
         long tours looks lighter than it is (its estimate is then also the most wrong).
         """
-        cache = self.__dict__.setdefault("_run_shapes", {})
-        if key not in cache:
+        if key not in self._run_shapes:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", UnreliableEstimateWarning)
-                cache[key] = np.asarray(whole_run().k_hat, np.float64)
-        return cache[key]
+                self._run_shapes[key] = np.asarray(whole_run().k_hat, np.float64)
+        return self._run_shapes[key]
 
     def _open_tours_caveat(self, lanes=None) -> str:
         """Tours still running at the end were left out: their (long) time is missing from the tours."""
@@ -299,7 +299,8 @@ class SampleResult:
             with warnings.catch_warnings():  # a statistic of the tours, not the user's estimate of Z
                 warnings.simplefilter("ignore", UnreliableEstimateWarning)
                 log_expected = float(self.normalising_constant("importance").value) - self.tour_log_rate
-            expected = math.exp(log_expected) if not log_expected >= math.log(np.finfo(np.float64).max) else math.inf
+            with np.errstate(over="ignore"):  # beyond float64: inf
+                expected = float(np.exp(np.float64(log_expected)))
         except ValueError:
             expected = math.nan
         s = self.sums
@@ -403,28 +404,28 @@ class SampleResult:
             warn(
                 f"the log density returned NaN or +inf at {self.num_invalid} evaluated points; they were "
                 "treated as zero density (rejected, or killed at once with weight zero)",
-                RuntimeWarning
+                RuntimeWarning,
             )
         if self.num_uncovered:
             warn(
                 f"{self.num_uncovered} steps reached states with positive target density where the "
                 "regeneration density is zero: tours there are never killed, so the regeneration "
                 "distribution must cover the target's support (widen it or add a defensive component)",
-                RuntimeWarning
+                RuntimeWarning,
             )
         if self.num_negative_rate:
             warn(
                 f"the kill rate was negative at {self.num_negative_rate} states: c_tilde is too small for these "
                 "dynamics there (the rate used was zero, so the process is not exactly invariant). Raise log_rate "
                 "(restore.minimal_log_rate searches for the smallest safe value)",
-                RuntimeWarning
+                RuntimeWarning,
             )
         if self.num_bound_exceeded:
             warn(
                 f"the kill rate exceeded the thinning bound at {self.num_bound_exceeded} candidate events (up to "
                 f"{self.max_bound_ratio:.3g} times the bound): those kills were too rare, so the process is not "
                 "exactly invariant. Raise the bound (restore.rate_bound searches a region for one)",
-                RuntimeWarning
+                RuntimeWarning,
             )
         if self.has_tours and self.log_rate is not None:
             stats = self.tour_statistics()
@@ -475,5 +476,5 @@ def _warn_unreliable(what: str, estimate: Estimate, advice: str) -> None:
     warn(
         f"{what}: the standard error cannot be trusted: {unreliable_reason(estimate)}"
         + ("" if estimate.k_limit < K_HAT_LIMIT else f"; {advice}"),  # too few terms: the reason says what to do
-        UnreliableEstimateWarning
+        UnreliableEstimateWarning,
     )

@@ -489,7 +489,7 @@ def sample(
             f"{unfinished} lanes still had an open tour after {finishing_steps} extra steps; those tours are "
             "left out of the tour-based estimates, which are therefore marked unreliable (tours can outlast the "
             "run: the regeneration barely covers a region where the target has mass, or the density's mass is infinite)",
-            RuntimeWarning
+            RuntimeWarning,
         )
     wall_time = elapsed()
     host = to_host(run)  # numpy, gathered over devices (and processes)

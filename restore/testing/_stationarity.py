@@ -161,6 +161,6 @@ def stationarity_test(
             f"{run.num_bound_exceeded} candidate events and was negative at {run.num_negative_rate} states, so "
             "this check tests an approximation (raise the bound, restore.rate_bound; or log_rate, "
             "restore.minimal_log_rate)",
-            RuntimeWarning
+            RuntimeWarning,
         )
     return report
