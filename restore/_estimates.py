@@ -62,6 +62,10 @@ class Estimate(NamedTuple):
         return text + ")"
 
 
+#: What `unreliable_reason` advises when there are too few terms (callers add no other advice then).
+FEW_TERMS_REMEDY = "run longer or with more lanes"
+
+
 def unreliable_reason(estimate: Estimate) -> str:
     """Plain words on why an estimate's error bar cannot be trusted (empty if it can)."""
     k = np.asarray(estimate.k_hat, np.float64)
@@ -75,7 +79,7 @@ def unreliable_reason(estimate: Estimate) -> str:
     if estimate.k_limit < K_HAT_LIMIT:
         return (
             f"too few terms (tours, or lanes) to trust a standard error: tail shape k_hat = {worst:.2f} >= "
-            f"{estimate.k_limit:.2f}, the limit for so few; run longer or with more lanes"
+            f"{estimate.k_limit:.2f}, the limit for so few; {FEW_TERMS_REMEDY}"
         )
     return (
         f"tail shape k_hat = {worst:.2f} >= {estimate.k_limit:.2f}: a few long tours dominate, the variance is likely "

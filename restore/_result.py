@@ -15,6 +15,7 @@ from ._arviz import CHAINS
 from ._arviz import to_arviz as arviz_export
 from ._diagnostics import TourStatistics, heavy_tail_reasons, tour_statistics
 from ._estimates import (
+    FEW_TERMS_REMEDY,
     Estimate,
     UnreliableEstimateWarning,
     check_total_time,
@@ -25,7 +26,7 @@ from ._estimates import (
 )
 from ._estimates_table import estimates_table
 from ._observables import Observables
-from ._pareto import K_HAT_LIMIT, k_hat_limit
+from ._pareto import k_hat_limit
 from ._sampler import AbstractSampler
 from ._tails import TourTails, duration_k, importance_k, residual_k, select_lanes
 from ._trace import RunTrace
@@ -473,8 +474,6 @@ def _warn_unreliable(what: str, estimate: Estimate, advice: str) -> None:
     """Say in plain words when an estimate's error bar cannot be trusted, and what to do."""
     if np.all(estimate.reliable):
         return
-    warn(
-        f"{what}: the standard error cannot be trusted: {unreliable_reason(estimate)}"
-        + ("" if estimate.k_limit < K_HAT_LIMIT else f"; {advice}"),  # too few terms: the reason says what to do
-        UnreliableEstimateWarning,
-    )
+    reason = unreliable_reason(estimate)
+    remedy = "" if reason.endswith(FEW_TERMS_REMEDY) else f"; {advice}"  # the reason may say what to do itself
+    warn(f"{what}: the standard error cannot be trusted: {reason}{remedy}", UnreliableEstimateWarning)

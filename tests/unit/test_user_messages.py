@@ -164,3 +164,17 @@ def test_tour_statistics_survive_an_expected_duration_beyond_float64():
     result = restore.sample(sampler, jax.random.key(0), num_lanes=8, num_steps=100, progress=False)
     stats = dataclasses.replace(result, log_rate=-800.0, expected_tour_times=None).tour_statistics()
     assert stats.expected_duration == math.inf and stats.num_tours > 0
+
+
+def test_the_advice_is_left_out_only_where_the_reason_gives_its_own():
+    """Too few terms: the reason says "run longer"; any other reason (an open-tour caveat with few
+    tours among them) gets the advice of the call."""
+    from restore._estimates import Estimate
+    from restore._result import _warn_unreliable
+
+    few = Estimate(np.array(0.0), np.array(0.1), np.array(0.6), 0.4)
+    caveat = Estimate(np.array(0.0), np.array(0.1), np.array(0.1), 0.4, "3 tours were still running")
+    for estimate, advised in ((few, False), (caveat, True)):
+        with pytest.warns(restore.UnreliableEstimateWarning) as caught:
+            _warn_unreliable("the estimate", estimate, "ADVICE")
+        assert ("ADVICE" in str(caught[0].message)) == advised, str(caught[0].message)
