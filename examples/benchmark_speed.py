@@ -29,7 +29,11 @@ with the lanes (host work between chunks, say): BlackJAX RMH, the bare step,
 tours finished after the budget (`num_chunks=1, max_draws=0`, as the ratios of set-up 1),
 and the steps the finishing took. `--sweep-only` runs the sweep alone, `--no-sweep` skips it.
 
+`--sweep-lanes` and `--lane-steps` change the sweep's sizes (a GPU needs more lanes and
+lane-steps than a CPU before its fixed costs stop dominating).
+
 Usage: python examples/benchmark_speed.py [--lanes 512] [--steps 1500] [--dim 10] [--rounds 5] [--sweep-only | --no-sweep]
+       [--sweep-lanes 512,8192,65536] [--lane-steps 6553600]
 """
 
 from __future__ import annotations
@@ -168,8 +172,8 @@ def report(name: str, contenders: dict[str, Contender], work: int, rounds: int) 
         print(f"{label:38s} {rate / 1e6:10.3f} {ratio:11.2f} {compile_seconds:10.2f} {compile_seconds / base_compile:11.2f}")
 
 
-def lanes_sweep(dim: int, rounds: int, lane_steps: int = 6_553_600) -> None:
-    """Set-up 1 at 512, 8,192 and 65,536 lanes, the same lane-steps each (module docstring).
+def lanes_sweep(dim: int, rounds: int, lane_steps: int = 6_553_600, lanes_list: tuple[int, ...] = (512, 8192, 65536)) -> None:
+    """Set-up 1 at each of `lanes_list` lanes, the same lane-steps each (module docstring).
 
     Runs that drop their open tours, or whose tours outlast 100 finishing steps, warn that
     their estimates lean or are unreliable; those warnings are silenced here (this measures speed)."""
@@ -179,7 +183,7 @@ def lanes_sweep(dim: int, rounds: int, lane_steps: int = 6_553_600) -> None:
     print(f"\n3. lanes sweep: set-up 1, {lane_steps:,} lane-steps per run, rounds of {rounds}")
     print(f"{'lanes x steps':>16s} {'':31s} {'M steps/s':>10s} {'/ BlackJAX':>11s}")
     ratios = {}
-    for lanes in (512, 8192, 65536):
+    for lanes in lanes_list:
         steps = lane_steps // lanes
         x0 = jax.random.normal(jax.random.key(1), (lanes, dim))
         contenders = {
@@ -201,8 +205,9 @@ def lanes_sweep(dim: int, rounds: int, lane_steps: int = 6_553_600) -> None:
             size = f"{lanes:,} x {steps:,}" if label == "BlackJAX RMH" else "."
             print(f"{size:>16s} {label:31s} {lanes * steps / float(np.median(seconds)) / 1e6:10.3f} {ratio:11.2f}")
         print(f"{'':16s} finishing after the budget: {finishing.finishing_steps} steps, {finishing.unfinished_tours} tours still open")
+    most, fewest = max(lanes_list), min(lanes_list)
     for label in ("restore.sample, budget only", "restore.sample"):
-        print(f"{label}: ratio at 65,536 lanes / ratio at 512 lanes = {ratios[65536, label] / ratios[512, label]:.2f}")
+        print(f"{label}: ratio at {most:,} lanes / ratio at {fewest:,} lanes = {ratios[most, label] / ratios[fewest, label]:.2f}")
 
 
 def _normal(x):
@@ -223,11 +228,14 @@ def main() -> None:
     sweep = parser.add_mutually_exclusive_group()
     sweep.add_argument("--sweep-only", action="store_true", help="run the lanes sweep alone")
     sweep.add_argument("--no-sweep", action="store_true", help="skip the lanes sweep")
+    parser.add_argument("--sweep-lanes", default="512,8192,65536", help="the sweep's lane counts, comma-separated")
+    parser.add_argument("--lane-steps", type=int, default=6_553_600, help="lanes x steps of each run of the sweep")
     args = parser.parse_args()
+    sweep_lanes = tuple(int(n) for n in args.sweep_lanes.split(","))
     lanes, steps, dim, rounds = args.lanes, args.steps, args.dim, args.rounds
     print(f"machine: {platform.processor() or platform.machine()}, {jax.device_count()} {jax.default_backend()} device(s), jax {jax.__version__}")
     if args.sweep_only:
-        lanes_sweep(dim, min(rounds, 3))
+        lanes_sweep(dim, min(rounds, 3), args.lane_steps, sweep_lanes)
         return
     print(f"{lanes} lanes x {steps} steps, {dim}-d, float64; compile s: BlackJAX's jit compilation, "
           "restore.sample's first call minus its run time (tracing, compilation, pilot)")
@@ -275,7 +283,7 @@ def main() -> None:
         rounds,
     )
     if not args.no_sweep:
-        lanes_sweep(dim, min(rounds, 3))
+        lanes_sweep(dim, min(rounds, 3), args.lane_steps, sweep_lanes)
 
 
 if __name__ == "__main__":
