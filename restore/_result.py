@@ -106,7 +106,28 @@ class SampleResult:
     _run_shapes: dict[str, np.ndarray] = dataclasses.field(default_factory=dict, init=False, repr=False)  # `_run_shape`
 
     @classmethod
-    def from_run(cls, *, sampler: AbstractSampler, pilot, observables: Observables, sums, histogram, tails, draws, draw_weights, final_state, num_steps, finishing_steps, thin, weights, wall_time, interrupted, draws_note=None, unfinished_tours=0, trace=None) -> SampleResult:
+    def from_run(
+        cls,
+        *,
+        sampler: AbstractSampler,
+        pilot,
+        observables: Observables,
+        sums,
+        histogram,
+        tails,
+        draws,
+        draw_weights,
+        final_state,
+        num_steps,
+        finishing_steps,
+        thin,
+        weights,
+        wall_time,
+        interrupted,
+        draws_note=None,
+        unfinished_tours=0,
+        trace=None,
+    ) -> SampleResult:
         to_np = lambda tree: jax.tree.map(np.asarray, tree)
         facts = sampler.run_facts()
         result = cls(
