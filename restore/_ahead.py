@@ -2,7 +2,7 @@
 
 The first `restore.sample` call of a process compiles three programs whose compilation
 does not depend on each other's results: the pilot that calibrates the kill rate, the
-start states, and the run loop (the largest: 2-4 s on a 2-core CPU). Their inputs'
+start states, and the run loop (the largest). Their inputs'
 shapes are known before the pilot has run, so the start states and the run loop are
 compiled in two background threads (XLA compiles without holding Python's lock) while the
 pilot compiles and runs. A program compiled this way lands in JAX's cache, so the call
@@ -11,9 +11,8 @@ that runs it compiles nothing.
 Tracing and lowering hold Python's lock, so they run in order of need: the run loop's
 first, alone (its XLA compilation is the longest step of a first call), then the start
 states' and the pilot's, while XLA compiles the loop. Started all at once they shared
-the lock and delayed the loop's compilation: the demo's first call took about 0.2 s
-longer (medians over fresh processes, alternating: 3.37 against 3.16 s and 4.32 against
-3.79 s, 14 each; a noisier set of 12 showed no gain).
+the lock and delayed the loop's compilation, and the demo's first call took longer
+(`docs/benchmarks.md`).
 
 Each signature is compiled ahead once per process; a compilation that fails here is
 dropped silently (the call itself then compiles the program, and reports the error if

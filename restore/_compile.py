@@ -1,29 +1,27 @@
 """How restore compiles its own programs: XLA's backend optimisation level 1 on the CPU.
 
 On the CPU, XLA's compile time is mostly LLVM's, and it grows with the number of kernels
-of a program: the sampler's loop has about 160 and took 2.1-2.6 s to compile at the
-default level 3. At level 1 it compiles in about half the time and ran as fast (512 lanes
-x 1500 steps, medians of 5 runs in alternating processes: a first call of `restore.sample`
-4.6-5.0 s -> 3.5 s with a Gaussian regeneration and 7.7-7.9 s -> 4.9-5.1 s with a
-Student-t mixture; run times equal within the machine's noise). Draws and tours are
-bit-identical; float64 sums can differ in the last bits (relative 1e-13), since LLVM may
-contract other multiply-adds. Level 0 is worse on both counts: the first call took
-5.4-5.7 s and the run 2.5-2.7 s instead of 0.76-0.94 s.
+of a program: the sampler's loop has about 160. At level 1 it compiles much faster than at
+the default level 3 and runs as fast. Draws and tours are bit-identical; float64 sums can
+differ in the last bits (relative 1e-13), since LLVM may contract other multiply-adds.
+Level 0 is worse on both counts: slower to compile and slower to run.
 
 Programs that run once per call (the start states, the pilot, key and carry set-up:
 `jit(once=True)`) also compile with XLA's older CPU kernel emitters
-(`xla_cpu_use_fusion_emitters=False`): 35% less compile time, for code that runs for
-milliseconds. The loops keep the newer emitters, whose code ran the jump-Restore loop
-(512 lanes, 10-d) 3-15% faster: on the run loop alone (same process, 7 rounds), 1.6 s
-less compile time cost 15% of the run with a Gaussian regeneration and 3% with a
-Student-t mixture, with bit-identical results either way. The renderer's programs ask
-for the newer emitters even where `XLA_FLAGS` selects the older ones: with those, the
-render loop of a Mitsuba scene compiled for over 20 minutes instead of seconds.
+(`xla_cpu_use_fusion_emitters=False`): they compile faster, and their code runs for
+milliseconds. The loops keep the newer emitters, whose code runs the jump-Restore loop
+faster by more than the compile time it saves, with bit-identical results either way.
+The renderer's programs ask for the newer emitters even where `XLA_FLAGS` selects the
+older ones: with those, the render loop of a Mitsuba scene did not finish compiling in
+any reasonable time.
 
 Each setting applies to the CPU backend only, and the emitter choice only where this XLA
 has it. `XLA_FLAGS` overrides the level of every program and the emitters of every
 program but the renderer's (then the user's choice stands). The test suite selects the
-older emitters in its `XLA_FLAGS`: its compile time fell by a quarter (`tests/conftest.py`).
+older emitters in its `XLA_FLAGS` to compile less (`tests/conftest.py`).
+
+The measurements behind these choices are in `docs/benchmarks.md` ("Measurements behind
+design choices in the code").
 """
 
 from __future__ import annotations

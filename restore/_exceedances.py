@@ -17,8 +17,8 @@ and lane; the rows above a threshold are gathered (`_sparse_draws.batch_lanes`: 
 and written after the buffer's used rows in one contiguous update, with no scatter. Only a
 compaction (about `log(n / B)` times for `n` rows offered) looks at the whole buffer: a
 histogram of each column's scores (from a sample of the rows) proposes the thresholds, and
-one exact pass checks how many rows they keep, with no sort (XLA's sorts and `top_k` on
-the CPU took 0.1 s for what this does in milliseconds).
+one exact pass checks how many rows they keep, with no sort (XLA's sorts and `top_k` are
+far slower on the CPU; `docs/benchmarks.md`).
 
 The values above a threshold of any group of lanes are its own largest values, so
 estimates from subsets of lanes (`lanes=` of a result) read their own tails from the same

@@ -12,15 +12,15 @@ def mahalanobis_sq(tril: Float[Array, "d d"], r: Float[Array, " d"]) -> Float[Ar
 
     Written for one point and `vmap`ped over lanes: the inverse depends on `L` alone, so it
     is computed once for all lanes and each lane does `d^2` multiplications. A triangular
-    solve per lane instead was more than half of a jump-Restore step's time on a CPU (XLA
-    loops over the batch of solves).
+    solve per lane instead dominated a jump-Restore step's time on a CPU (XLA loops over
+    the batch of solves).
     """
     inverse = jax.scipy.linalg.solve_triangular(tril, jnp.eye(tril.shape[-1], dtype=tril.dtype), lower=True)
     # `r @ L^{-T}`, a matrix product. Two other forms are worse on the CPU with jax 0.10.2:
     # - `inverse @ r`, summed and vmapped over more than 16384 lanes, gives wrong float64
     #   results for the lanes past 16384 (an XLA bug; tests/unit/test_many_lanes.py);
-    # - the elementwise `sum(inverse * r, -1)` becomes a YNNPACK fusion that took 30 us per
-    #   step for 512 lanes in 10-d, against 6 us for this product.
+    # - the elementwise `sum(inverse * r, -1)` becomes a YNNPACK fusion that is several
+    #   times slower than this product.
     z = r @ inverse.T
     return jnp.sum(z**2)
 

@@ -27,8 +27,9 @@ def log_uniform(key: PRNGKeyArray, dtype) -> Float[Array, ""]:
 
 
 # Drawn eagerly, `jax.random.normal` and `uniform` go through JAX's own sampling programs,
-# compiled at XLA's default optimisation level: 0.7 s for the demo's 64 starts. These
-# compile them as restore compiles its programs (`_compile`), with the same bits.
+# compiled at XLA's default optimisation level, which is slow to compile even for the
+# demo's 64 starts. These compile them as restore compiles its programs (`_compile`), with
+# the same bits.
 @jit(static_argnums=(1, 2), once=True)
 def normal_draws(key: PRNGKeyArray, shape: tuple[int, ...], dtype) -> Array:
     """`jax.random.normal(key, shape, dtype)`, compiled as restore's programs are."""

@@ -97,7 +97,7 @@ def _compile_run_ahead(like, init_keys, positions, lane_keys, observables, capac
     is traced first and the start states after it (see `_ahead`)."""
 
     def loop_arguments() -> tuple:
-        # The start states' layout from one lane (tracing `vmap` over every lane cost 0.1-0.3 s more).
+        # The start states' layout from one lane: tracing `vmap` over every lane is slower.
         one = [init_keys] if positions is None else [init_keys, positions]
         lane = jax.eval_shape(like.init, *[jax.ShapeDtypeStruct(a.shape[1:], a.dtype) for a in one])
         states = jax.tree.map(lambda a: jax.ShapeDtypeStruct((init_keys.shape[0], *a.shape), a.dtype), lane)

@@ -29,8 +29,8 @@ def draw_slots(num_lanes: int, fraction: float | None) -> int | None:
     is assumed). The size is the binomial mean plus two standard deviations and `MIN_SLOTS`,
     so about one step in forty needs a second batch; `None` when that is half the lanes or
     more, where gathering would save little. (Six standard deviations never needed a second
-    batch but drew twice the lanes a step uses; two were 2-4% faster with a Student-t
-    mixture, whose draws loop over gamma rejections, and as fast with a Gaussian.)
+    batch but drew twice the lanes a step uses; two were faster with a Student-t mixture,
+    whose draws loop over gamma rejections, and as fast with a Gaussian.)
     """
     share = 0.25 if fraction is None else min(max(float(fraction), 0.0), 1.0)
     mean = num_lanes * share
@@ -44,8 +44,8 @@ def batch_lanes(needed: Bool[Array, " n"], rank: Array, first: Array, slots: int
     (`n` where there is none).
 
     A scatter of each lane's index to its rank: linear in the lanes. (A comparison of every
-    rank with every slot is quadratic, 0.6 s a step at 65,536 lanes; a binary search for each
-    slot was two to three times slower than the scatter on the CPU.)
+    rank with every slot is quadratic, far too slow at many lanes; a binary search for each
+    slot was slower than the scatter on the CPU.)
     """
     num_lanes = needed.shape[0]
     slot = jnp.where(needed & (rank >= first) & (rank < first + slots), rank - first, slots)

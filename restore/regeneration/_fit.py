@@ -109,7 +109,7 @@ def _shifted_exp(a: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray, np.n
 
 def single_threaded(fit):
     """Run a fit with one BLAS thread: its matrices are small, and spinning BLAS threads that
-    compete with each other and with XLA made these fits twenty times slower on two cores."""
+    compete with each other and with XLA made these fits many times slower on two cores."""
 
     @functools.wraps(fit)
     def wrapped(*args, **kwargs):

@@ -400,9 +400,9 @@ def finishing_rungs(lanes: int) -> tuple[int, ...]:
     Why several: a step costs a fixed overhead plus a share per point, and most of the
     finishing time goes to the last few long tours. With thousands of tours open, the large
     batch gives each one a step; with a few hundred, a smaller batch still gives each one a
-    step (or a tree of speculative steps) at a fraction of the cost. On the pool scene at
-    16384 lanes the finishing took 14-17 s with 4096, 1024 and 256 points against 23 s with
-    4096 alone (`docs/rendering.md`).
+    step (or a tree of speculative steps) at a fraction of the cost. The ladder finished the
+    pool scene's tours sooner than the largest batch alone (`docs/rendering.md`,
+    `docs/benchmarks.md`).
     """
     rungs = [finishing_slots(lanes)]
     while rungs[-1] // _FINISHING_SHARE >= _FINISHING_SMALLEST:
@@ -414,7 +414,7 @@ def _finisher(renderer, target, lanes, state_shape, warm_key, warm_state):
     """`((slots, finish), ...)`: the renderer's `finish` compiled for the run's state with
     each of `finishing_rungs(lanes)` evaluations per step, and called once here, outside
     the budget (Dr.Jit records its kernels for each batch size). Its draws run on unrolled
-    Threefry keys, as the chunk's do: the same bits, about 10% less finishing time."""
+    Threefry keys, as the chunk's do: the same bits, in less finishing time."""
     key_spec = jax.eval_shape(lambda: warm_key)
     n_spec = jax.ShapeDtypeStruct((), jnp.int32)
     programs = []

@@ -83,11 +83,10 @@ def lane_keys(key: PRNGKeyArray, n: int) -> PRNGKeyArray:
     """The `n` lanes' keys of a step, `split(key, n)`, computed once (an optimisation barrier).
 
     Without the barrier XLA fuses the split into the kernels that draw from each lane's key,
-    and hashes the lane's key again for every word they draw: a Metropolis Restore step of
-    2048 lanes took 1.18-1.23 times as long (its lane keys are split into five), a PSSMLT
-    step 1.13 times (door_gap, 256x256). The bits are the same. (`restore.sample`'s loop,
-    which derives its lane keys by `fold_in`, showed no such gain, so the core step has no
-    barrier.)
+    and hashes the lane's key again for every word they draw, which makes the Metropolis
+    Restore and PSSMLT steps measurably slower (`docs/benchmarks.md`). The bits are the same.
+    (`restore.sample`'s loop, which derives its lane keys by `fold_in`, showed no such gain,
+    so the core step has no barrier.)
     """
     return jax.lax.optimization_barrier(jax.random.split(key, n))
 

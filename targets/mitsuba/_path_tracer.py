@@ -10,7 +10,7 @@ function `f(u)` of a point `u` of the unit hypercube, the primary sample space.
 The bounce loop is unrolled in Python (fixed `max_depth`) so that reverse-mode AD works
 through it; the MIS weights are written here, not taken from Mitsuba (whose weights are
 detached). `make_tracers` wraps the batch functions in `dr.freeze`, which removes the
-per-call tracing cost (~0.7 s) after the first call.
+per-call tracing cost after the first call.
 """
 
 from __future__ import annotations
