@@ -1,4 +1,11 @@
-"""Run many independent lanes of a sampler in jitted chunks, with every sum and tail kept on the device."""
+"""Run many independent lanes of a sampler, with every sum and tail kept on the device.
+
+A run is a sequence of chunks, each one compiled `jax.lax.while_loop` that steps every
+lane (`_run_loop.advance`); the host drives the chunks (`_driver.drive`: their lengths,
+checkpoints and progress). After the step budget, the tours still open are run to their
+end by another `while_loop`: over a narrower batch of the open lanes
+(`_run_loop.finish`), or over every lane where there are too few lanes for that.
+"""
 
 from __future__ import annotations
 
