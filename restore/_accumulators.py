@@ -260,7 +260,7 @@ def _host(x) -> np.ndarray:
 def host_totals(totals: Totals) -> tuple[LaneSums, tuple[np.ndarray, np.ndarray]]:
     """The totals on the host as float64 / int64, rounding errors added back; a histogram
     kept per device (a leading device axis) is summed over the devices."""
-    sums = LaneSums(*(_host(x) for x in totals.sums))
+    sums = LaneSums._make(_host(x) for x in totals.sums)
     counts, times = (_host(h) for h in totals.histogram)
     if totals.error is not None:
         errors, (count_error, time_error) = totals.error

@@ -18,6 +18,7 @@ from typing import Any
 
 import equinox as eqx
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from ._io import atomic_write
@@ -56,7 +57,7 @@ def array_digest(tree) -> str:
 def save_checkpoint(path: str | os.PathLike, tree, header: dict[str, Any]) -> Path:
     """Write `tree`'s array leaves and `header` to `path` atomically (temporary file, then rename)."""
     leaves = jax.tree.leaves(tree)
-    arrays = {f"leaf{i:05d}": _to_numpy(leaf) for i, leaf in enumerate(leaves)}
+    arrays: dict[str, Any] = {f"leaf{i:05d}": _to_numpy(leaf) for i, leaf in enumerate(leaves)}  # `Any`: as `savez` types its keywords
     text = json.dumps({"format": FORMAT, **header}, sort_keys=True)
     arrays["header"] = np.frombuffer(text.encode(), np.uint8)
 
@@ -130,5 +131,5 @@ def load_checkpoint(path: str | os.PathLike, like, expected: dict[str, Any]) -> 
                 f"checkpoint {path}: array {i} has shape {saved.shape} and dtype {saved.dtype}, this run expects "
                 f"{shape} and {dtype}"
             )
-        restored.append(jax.random.wrap_key_data(saved, impl=jax.random.key_impl(leaf)) if _is_key(leaf) else saved)
+        restored.append(jax.random.wrap_key_data(jnp.asarray(saved), impl=jax.random.key_impl(leaf)) if _is_key(leaf) else saved)
     return jax.tree.unflatten(treedef, restored), header

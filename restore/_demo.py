@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -15,6 +15,7 @@ from ._io import matplotlib_for, save_and_close
 from ._jump_restore import JumpRestore
 from ._mixture_mh import MixtureMH
 from ._random import normal_draws
+from ._result import SampleResult
 from ._sample import sample
 from .local import RandomWalk
 from .regeneration import laplace_mixture
@@ -31,8 +32,8 @@ class DemoOutcome(NamedTuple):
     evaluations: int
     log_z: Estimate
     num_modes_found: int
-    restore_result: object
-    mh_result: object
+    restore_result: SampleResult
+    mh_result: SampleResult
 
 
 def run_demo(
@@ -63,7 +64,7 @@ def run_demo(
 
     restore_sampler = JumpRestore(target.logdensity, local, nu, tour_length=tour_length)
     mh_sampler = MixtureMH(target.logdensity, local, nu, large_step_probability=1.0 / tour_length)
-    kwargs = dict(num_lanes=num_lanes, num_steps=num_steps, observables=observables, progress=progress)
+    kwargs: dict[str, Any] = dict(num_lanes=num_lanes, num_steps=num_steps, observables=observables, progress=progress)
 
     t0 = time.perf_counter()
     restore_result = sample(restore_sampler, k_restore, **kwargs)

@@ -25,6 +25,10 @@ import signal
 import threading
 import time
 from collections.abc import Callable, Iterator
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from rich.progress import Progress, TaskID
 
 
 @dataclasses.dataclass(frozen=True)
@@ -73,7 +77,8 @@ class Meter:
             unit,
             completed,
         )
-        self._bar = self._task = None
+        self._bar: Progress | None = None
+        self._task: TaskID | None = None
 
     @contextlib.contextmanager
     def shown(self) -> Iterator[Meter]:
@@ -95,14 +100,15 @@ class Meter:
         )
         with Progress(*columns, transient=False) as bar:
             self._bar = bar
-            self._task = bar.add_task(self.description, total=self.total, completed=self.completed, rate="")
+            self._task = bar.add_task(self.description, total=self.total, rate="")
+            bar.update(self._task, completed=self.completed)  # (a float: `add_task` takes whole numbers)
             try:
                 yield self
             finally:
                 self._bar = None
 
     def update(self, completed: float, rate: str = "") -> None:
-        if self._bar is not None:
+        if self._bar is not None and self._task is not None:
             self._bar.update(self._task, completed=min(completed, self.total), rate=rate)
 
 
@@ -123,7 +129,7 @@ def _interrupt_deferred() -> Iterator[None]:
 
 
 def drive(
-    advance: Callable[[int], int],
+    advance: Callable[[int], int | Callable[[], int]],
     *,
     budget: Budget,
     chunk: int,

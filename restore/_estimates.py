@@ -54,8 +54,7 @@ class Estimate(NamedTuple):
             return (self.value - np.asarray(truth)) / self.standard_error
 
     def __repr__(self) -> str:
-        fmt = {"float_kind": lambda v: f"{v:.4g}"}
-        show = lambda a: np.array2string(np.asarray(a), formatter=fmt)  # noqa: E731
+        show = lambda a: np.array2string(np.asarray(a), formatter={"float_kind": lambda v: f"{v:.4g}"})  # noqa: E731
         text = f"{type(self).__name__}(value={show(self.value)}, standard_error={show(self.standard_error)}, k_hat={show(self.k_hat)}"
         if not np.all(self.reliable):
             text += f", UNRELIABLE: {unreliable_reason(self)}"

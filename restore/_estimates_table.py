@@ -51,7 +51,7 @@ def _rows(names: list[str], est: Estimate, ess: np.ndarray, max_rows: int) -> li
         for a in (est.value, est.standard_error, est.k_hat, ess)
     )
     reliable = np.asarray(est.reliable).reshape(-1)
-    rows = [
+    rows: list[tuple[str, ...]] = [
         (
             names[i],
             *_mean_and_error(value[i], error[i]),

@@ -71,16 +71,16 @@ class Exceedances(NamedTuple):
     """A buffer of rows whose scores exceed their columns' thresholds (device or host arrays).
 
     Attributes:
-        rows: `(B, P)` the kept rows, in the order they came (unused rows after `count`).
+        rows: `(B, P)` the kept rows, in the order they came (unused rows after `filled`).
         lane: `(B,)` the lane each row came from.
-        count: `()` used rows.
+        filled: `()` used rows.
         threshold: `(C,)` per score column: every row offered and not kept has its score in
             this column at or below this (`-inf`: every row was kept).
     """
 
     rows: Float[Array, "B P"]
     lane: Int[Array, " B"]
-    count: Int[Array, ""]
+    filled: Int[Array, ""]
     threshold: Float[Array, " C"]
 
     @property
@@ -111,7 +111,7 @@ def compact(buffer: Exceedances, scoring: Scoring) -> Exceedances:
     capacity = buffer.capacity
     half = capacity // 2
     scores = log_scores(buffer.rows, scoring)
-    used = jnp.arange(capacity) < buffer.count
+    used = jnp.arange(capacity) < buffer.filled
     scores = jnp.where(used[:, None], scores, -jnp.inf)
     top = jnp.max(scores, axis=0)  # (C,)
     scale = BINS_PER_OCTAVE / math.log(2.0)
@@ -132,7 +132,7 @@ def compact(buffer: Exceedances, scoring: Scoring) -> Exceedances:
     def kept(rank: Array) -> Array:
         return jnp.sum(used & jnp.any(scores > thresholds(rank), axis=1), dtype=jnp.int32)
 
-    half_rank = half + jnp.zeros_like(buffer.count)  # varies with the buffer, as the loops' results do (under `shard_map`)
+    half_rank = half + jnp.zeros_like(buffer.filled)  # varies with the buffer, as the loops' results do (under `shard_map`)
     rank = jax.lax.while_loop(lambda r: (kept(r) > half) & (r > 0), lambda r: r * 3 // 4, half_rank)
     threshold = thresholds(rank)
     keep = used & jnp.any(scores > threshold, axis=1)
@@ -147,18 +147,18 @@ def compact(buffer: Exceedances, scoring: Scoring) -> Exceedances:
 
 def _append(buffer: Exceedances, rows: Float[Array, "S P"], lanes: Int[Array, " S"], count: Int[Array, ""]) -> Exceedances:
     """The buffer with the first `count` of `rows` appended (all `S` rows must fit after its used ones)."""
-    start = (buffer.count, jnp.zeros((), jnp.int32))
+    start = (buffer.filled, jnp.zeros((), jnp.int32))
     return buffer._replace(
         rows=jax.lax.dynamic_update_slice(buffer.rows, rows.astype(buffer.rows.dtype), start),
         lane=jax.lax.dynamic_update_slice(buffer.lane, lanes.astype(jnp.int32), start[:1]),
-        count=buffer.count + count,
+        filled=buffer.filled + count,
     )
 
 
 def make_room(buffer: Exceedances, incoming: Array, scoring: Scoring) -> Exceedances:
     """The buffer, compacted if `incoming` more rows might not fit (one compaction makes room
     for up to half the buffer)."""
-    return jax.lax.cond(buffer.count + incoming > buffer.capacity, lambda b: compact(b, scoring), lambda b: b, buffer)
+    return jax.lax.cond(buffer.filled + incoming > buffer.capacity, lambda b: compact(b, scoring), lambda b: b, buffer)
 
 
 def append(buffer: Exceedances, rows: Float[Array, "S P"], lanes: Int[Array, " S"], keep: Bool[Array, " S"]) -> Exceedances:
@@ -221,7 +221,7 @@ def largest(buffer: Exceedances, scoring: Scoring) -> Largest:
     rows = np.asarray(buffer.rows)
     if rows.ndim == 3:  # one buffer per device
         return merge([largest(Exceedances(*(np.asarray(a)[d] for a in buffer)), scoring) for d in range(rows.shape[0])], scoring)
-    count = int(np.asarray(buffer.count))
+    count = int(np.asarray(buffer.filled))
     rows = rows[:count].astype(np.float64)
     threshold = np.asarray(buffer.threshold, np.float64)
     keep = np.any(log_scores(rows, scoring, np) > threshold, axis=1)

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any, cast
 
+import numpy as np
 from jaxtyping import Array
 
 from ._parts import check_parts
@@ -60,11 +62,11 @@ class JumpRestore(AbstractRestore):
 
     def __init__(
         self,
-        logdensity: Callable[[Array], Array],
+        logdensity: Callable[[Array], Any],
         local: AbstractLocalKernel,
         regeneration: AbstractRegeneration,
         *,
-        log_rate: float | None = None,
+        log_rate: float | Array | None = None,
         tour_length: float | None = None,
         local_rate: float = 1.0,
         pilot_size: int = 4096,
@@ -72,7 +74,7 @@ class JumpRestore(AbstractRestore):
     ):
         check_parts(logdensity, local, regeneration, has_aux=has_aux)
         if log_rate is not None and getattr(log_rate, "ndim", 0) != 0:
-            raise ValueError(f"log_rate must be a scalar, got shape {log_rate.shape}")  # type: ignore[attr-defined]
+            raise ValueError(f"log_rate must be a scalar, got shape {np.shape(log_rate)}")
         if local_rate is None:
             raise TypeError("local_rate must be a positive number (the rate r of local moves), got None")
         dynamics = Jump(local, check_positive(local_rate, "local_rate"))
@@ -80,7 +82,7 @@ class JumpRestore(AbstractRestore):
 
     @property
     def local(self) -> AbstractLocalKernel:
-        return self.dynamics[0].kernel  # type: ignore[attr-defined]
+        return cast(Jump, self.dynamics[0]).kernel
 
     @property
     def regeneration(self) -> AbstractRegeneration:
@@ -88,4 +90,4 @@ class JumpRestore(AbstractRestore):
 
     @property
     def local_rate(self) -> float:
-        return self.dynamics[0].rate  # type: ignore[attr-defined]
+        return cast(Jump, self.dynamics[0]).rate

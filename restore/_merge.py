@@ -51,7 +51,7 @@ def merge_results(results: Sequence[SampleResult]) -> SampleResult:
                 "the thinning followed each part's draws budget; pass the same thin= to every part"
             )
     concat = lambda *parts: np.concatenate(parts, axis=0)
-    sums = LaneSums(**{f: concat(*(np.asarray(getattr(r.sums, f)) for r in results)) for f in LaneSums._fields})
+    sums = LaneSums._make(concat(*(np.asarray(getattr(r.sums, f)) for r in results)) for f in LaneSums._fields)
     final_state = jax.tree.map(concat, *(r.final_state for r in results))
     offsets = np.cumsum([0] + [r.num_lanes for r in results[:-1]]).tolist()
     tails = None if first.tails is None else merge_tails([r.tails for r in results if r.tails is not None], offsets)

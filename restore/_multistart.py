@@ -182,7 +182,7 @@ def maximise(
     n, d = starts.shape
     if (lower is None) != (upper is None):
         raise ValueError("give both `lower` and `upper` (a box), or neither.")
-    if lower is not None:
+    if lower is not None and upper is not None:
         lower, upper = check_box(lower, upper, starts.dtype)
         if lower.shape != (d,):
             raise ValueError(f"the box has dimension {lower.shape[0]} but the starts have dimension {d}.")

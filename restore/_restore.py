@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from typing import Any, ClassVar, NamedTuple
+from typing import Any, ClassVar, NamedTuple, Self, cast
 
 import equinox as eqx
 import jax
@@ -228,7 +228,7 @@ class AbstractRestore(AbstractSampler):
         if self.log_rate is None:
             return None
         rates = np.atleast_1d(np.asarray(self.log_rate, np.float64))  # on the host: no eager device ops to compile
-        if not jax.config.jax_enable_x64:  # type: ignore[attr-defined]
+        if not jax.config.read("jax_enable_x64"):
             rates = rates.astype(np.float32)
         top = np.max(-rates)
         return float(-(top + np.log(np.sum(np.exp(-rates - top))) - math.log(rates.shape[0])))
@@ -275,7 +275,7 @@ class AbstractRestore(AbstractSampler):
         pilot = pilot_log_z(key, self.log_value, self.transfers[0].reference, self.pilot_size)
         return self.calibrated_to(pilot.log_z), pilot
 
-    def calibrated_to(self, log_z: float | Array) -> AbstractRestore:
+    def calibrated_to(self, log_z: float | Array) -> Self:
         """The sampler with `log_rate` set from `tour_length` and an estimate of `log Z` you have.
 
         What `calibrate` does with its pilot's estimate, for an estimate from elsewhere (an
@@ -308,7 +308,7 @@ class AbstractRestore(AbstractSampler):
         return self.log_rate
 
     # ------------------------------------------------------------------ phase helpers
-    def _by_phase(self, phase: Array, fn: Callable[[int], object]):
+    def _by_phase(self, phase: Array | int, fn: Callable[[int], object]):
         if self.num_phases == 1:
             return fn(0)
         return jax.lax.switch(phase, [lambda k=k: fn(k) for k in range(self.num_phases)])
@@ -319,7 +319,7 @@ class AbstractRestore(AbstractSampler):
         rule = self.phase_rule or (lambda i: cycle(i, self.num_phases))
         return jnp.clip(jnp.asarray(rule(tour), jnp.int32), 0, self.num_phases - 1)
 
-    def _terms(self, phase: Array, point: Point, invalid: Array, log_rates: Array):
+    def _terms(self, phase: Array | int, point: Point, invalid: Array, log_rates: Array):
         """Kill-rate terms at an evaluated point: `(point, invalid, log_q, log_kill, adjoint)`."""
 
         def one(k: int):
@@ -410,7 +410,7 @@ class AbstractRestore(AbstractSampler):
 
     def _kill_terms(self, k: int, state: RestoreState):
         """`log gamma` (the total kill rate), the negative-rate flag and `log r` of phase `k`."""
-        dynamics: AbstractJumpDynamics = self.dynamics[k]
+        dynamics = cast(AbstractJumpDynamics, self.dynamics[k])
         log_r = jnp.log(jnp.asarray(dynamics.rate, state.logdensity.dtype))
         if dynamics.is_invariant:
             return state.log_kill_rate, jnp.zeros((), bool), log_r
@@ -426,7 +426,7 @@ class AbstractRestore(AbstractSampler):
         return self._by_phase(phase, lambda j: self.transfers[j].sample(key, position)).astype(position.dtype)
 
     def _jump_step(self, k: int, keys: _JumpKeys, state: RestoreState, log_rates: Array, killed=None, fresh=None):
-        dynamics: AbstractJumpDynamics = self.dynamics[k]
+        dynamics = cast(AbstractJumpDynamics, self.dynamics[k])
         dtype = state.logdensity.dtype
         log_gamma, negative, log_r = self._kill_terms(k, state)
         if killed is None:
@@ -476,7 +476,7 @@ class AbstractRestore(AbstractSampler):
         return new_state, info
 
     def _diffusion_step(self, k: int, key: PRNGKeyArray, state: RestoreState, log_rates: Array):
-        dynamics: AbstractDiffusion = self.dynamics[k]
+        dynamics = cast(AbstractDiffusion, self.dynamics[k])
         k_gap, k_move, k_kill = jax.random.split(key, 3)
         dtype = state.logdensity.dtype
         bound = jnp.asarray(self.bound[k], dtype)

@@ -39,6 +39,13 @@ class LogEstimate(Estimate):
     """An estimate of a logarithm, e.g. `log Z`; `standard_error` is that of the log."""
 
 
+def _kept(tails: TourTails | None) -> TourTails:
+    """The run's tour tails, which every run with tours keeps."""
+    if tails is None:
+        raise ValueError("this result kept no tour tails")
+    return tails
+
+
 @dataclasses.dataclass(eq=False)
 class SampleResult:
     """What `restore.sample` returns: streamed sums, thinned draws and run facts.
@@ -205,14 +212,15 @@ class SampleResult:
         if self._default_method(method) == "tours":
             est = tour_ratio(pick(s.sum_f)[:, cut], pick(s.sum_f2)[:, cut], pick(s.sum_ft)[:, cut], pick(s.sum_t), pick(s.sum_t2), pick(s.num_tours))
             n = int(np.sum(pick(s.num_tours)))
-            tails = self.tails if lanes is None else select_lanes(self.tails, lanes, self.num_lanes)
+            tails = _kept(self.tails) if lanes is None else select_lanes(_kept(self.tails), lanes, self.num_lanes)
             k_hat = np.array([residual_k(tails, slot.start + j, float(v), n) for j, v in enumerate(est.value.reshape(-1))])
             if lanes is not None:
                 k_hat = np.fmax(k_hat, np.ravel(self._run_shape(name, lambda: self.estimate(name, method))))
             est = est._replace(k_hat=k_hat, k_limit=k_hat_limit(n), caveat=self._open_tours_caveat(lanes))
         else:
             est = lane_ratio(pick(s.all_f)[:, cut], pick(s.all_t))
-        shaped = Estimate(*(np.reshape(a, slot.shape) for a in est[:3]), est.k_limit, est.caveat)  # type: ignore[call-arg]
+        shape = lambda a: np.reshape(a, slot.shape)  # noqa: E731
+        shaped = Estimate(shape(est.value), shape(est.standard_error), shape(est.k_hat), est.k_limit, est.caveat)
         _warn_unreliable(f"the estimate of {name!r}", shaped, self.advice)
         return shaped
 
@@ -258,6 +266,7 @@ class SampleResult:
             mean = T / n
             times = self.expected_tour_times
             log_z = np.asarray(self.log_rate + math.log(mean))
+            k_hat: float | np.ndarray
             if times is not None:  # several phases: tours of phase j last Z / c_tilde_j on average
                 times = np.asarray(times) if lanes is None else np.asarray(times)[lanes]
                 ratio = lane_ratio(s.sum_t, times)  # Z_hat = sum T / sum 1 / c_tilde_phase(k), lanes independent
@@ -266,7 +275,7 @@ class SampleResult:
             elif self.is_regenerative:
                 sd = math.sqrt(max(T2 / n - mean**2, 0.0) * n / (n - 1))
                 rel_se = sd / (mean * math.sqrt(n))
-                k_hat, k_limit = duration_k(tails, int(n)), k_hat_limit(n)
+                k_hat, k_limit = duration_k(_kept(tails), int(n)), k_hat_limit(n)
                 if lanes is not None:
                     k_hat = float(np.fmax(k_hat, self._run_shape("log Z", lambda: self.normalising_constant())))
             else:
@@ -275,9 +284,9 @@ class SampleResult:
             est = LogEstimate(log_z, np.asarray(rel_se), np.asarray(k_hat), k_limit, self._open_tours_caveat(lanes))
         elif method == "importance":
             starts = float(np.sum(s.num_iw))
-            log_z, se = log_mean_exp(s.log_iw_sum, s.log_iw_sum2, starts)
-            k_hat = importance_k(tails, int(starts))
-            est = LogEstimate(np.asarray(log_z), np.asarray(se), np.asarray(k_hat), k_hat_limit(starts))
+            log_iw, se = log_mean_exp(s.log_iw_sum, s.log_iw_sum2, starts)
+            k_iw = importance_k(_kept(tails), int(starts))
+            est = LogEstimate(np.asarray(log_iw), np.asarray(se), np.asarray(k_iw), k_hat_limit(starts))
         else:
             raise ValueError(f"method must be 'tours' or 'importance', got {method!r}")
         _warn_unreliable(f"log Z ({method})", est, self.advice)
@@ -320,7 +329,11 @@ class SampleResult:
         try:  # the requested tour length, if any, corrected for the pilot's error in Z
             with warnings.catch_warnings():  # a statistic of the tours, not the user's estimate of Z
                 warnings.simplefilter("ignore", UnreliableEstimateWarning)
-                log_expected = float(self.normalising_constant("importance").value) - self.tour_log_rate
+                log_z = float(self.normalising_constant("importance").value)  # a ValueError without a log_rate
+                tour_log_rate = self.tour_log_rate
+                if tour_log_rate is None:  # (only without a log_rate, as above)
+                    raise ValueError("no log_rate")
+                log_expected = log_z - tour_log_rate
             with np.errstate(over="ignore"):  # beyond float64: inf
                 expected = float(np.exp(np.float64(log_expected)))
         except ValueError:

@@ -27,6 +27,7 @@ from typing import Any, NamedTuple
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array
 
 from ._accumulators import (
@@ -127,7 +128,7 @@ def start_carry(states, shape: CarryShape) -> RunCarry:
 def carry_shardings(carry: RunCarry, sharding: LaneSharding) -> RunCarry:
     """Lane axes split over the mesh; the partial histograms and tail buffers one per device; the step counter replicated."""
     lanes = lambda tree: jax.tree.map(lambda _: sharding.lanes, tree)
-    return RunCarry(
+    shardings = dict(
         states=lanes(carry.states),
         sums=lanes(carry.sums),
         histogram=lanes(carry.histogram),  # one row per device
@@ -138,6 +139,7 @@ def carry_shardings(carry: RunCarry, sharding: LaneSharding) -> RunCarry:
         draw_weights=sharding.lanes_second,
         step=sharding.replicated,
     )
+    return RunCarry._make(shardings[field] for field in RunCarry._fields)
 
 
 class _Tallied(NamedTuple):
@@ -244,7 +246,8 @@ class Chunk(NamedTuple):
         sampler: the sampler.
         observe: the observables.
         lane_keys: each lane's key.
-        length: steps of the chunk (finishing: at most this many per lane).
+        length: steps of the chunk (finishing: at most this many per lane); NumPy scalars
+            (here and in `finishing` and `thin`) only where a chunk is built to compile ahead.
         finishing: finish the open tours (start none), else run the step budget.
         thin: store the state every `thin` steps.
         rao_blackwell: weigh by the expected holding times (static).
@@ -255,9 +258,9 @@ class Chunk(NamedTuple):
     sampler: Any
     observe: Observables
     lane_keys: Array
-    length: Array
-    finishing: Array
-    thin: Array
+    length: Array | np.ndarray
+    finishing: Array | np.ndarray
+    thin: Array | np.ndarray
     rao_blackwell: bool
     sharding: LaneSharding | None = None
     width: int = 0

@@ -438,7 +438,9 @@ def sample(
 
         def commit() -> int:
             nonlocal run, committed_steps
-            steps, time_, accepted, regenerations, _ = (int(x) if x.dtype.kind == "i" else float(x) for x in map(np.asarray, report))  # waits
+            host = [np.asarray(x) for x in report]  # waits
+            steps = int(host[0])
+            time_, accepted, regenerations = (int(x) if x.dtype.kind == "i" else float(x) for x in host[1:4])
             run, committed_steps = carry, committed_steps + steps  # (`carry` may have given its buffers to the next chunk already)
             trace_rows.append((committed_steps, steps * num_lanes, time_, accepted, regenerations))
             return steps

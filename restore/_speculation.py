@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import functools
 import heapq
-from typing import NamedTuple
+from typing import NamedTuple, cast
 
 import jax
 import jax.numpy as jnp
@@ -144,7 +144,7 @@ def speculative_steps(
     """
     check_speculative(sampler)
     log_rates = sampler._require_rate()
-    dynamics: AbstractJumpDynamics = sampler.dynamics[0]
+    dynamics = cast(AbstractJumpDynamics, sampler.dynamics[0])
     n_lanes = active.shape[0]
     dtype = states.logdensity.dtype
     log_r = jnp.log(jnp.asarray(dynamics.rate, dtype))

@@ -72,7 +72,7 @@ def _split(key: Array, shape: tuple[int, ...]) -> Array:
     return jnp.stack([first, second], axis=-1)
 
 
-def _fold_in(key: Array, data: Array) -> Array:
+def _fold_in(key: Array, data: Array | int) -> Array:
     data = lax.convert_element_type(jnp.asarray(data), np.uint32)
     first, second = threefry2x32(key[0], key[1], jnp.zeros((), np.uint32), data)
     return jnp.stack([first, second])

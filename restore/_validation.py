@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import Any
+from typing import Any, overload
 
 import jax
 import jax.numpy as jnp
@@ -51,6 +51,10 @@ def check_integer(value: Any, name: str, minimum: int = 1) -> int:
     return int(value)
 
 
+@overload
+def check_positive(value: None, name: str) -> None: ...
+@overload
+def check_positive(value: Any, name: str) -> float: ...
 def check_positive(value: Any, name: str) -> float | None:
     """A positive, finite real number (a rate, a length), or `None`.
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import overload
 
 import typer
 from rich.console import Console
@@ -94,7 +95,7 @@ def demo(
         "wall time (with compilation)", "", f"{outcome.restore_seconds:.1f} s", "", f"{outcome.mh_seconds:.1f} s", ""
     )
     console.print(table)
-    stats = outcome.restore_result.tour_statistics()  # type: ignore[attr-defined]
+    stats = outcome.restore_result.tour_statistics()
     console.print(
         f"jump Restore: {stats.num_tours:,} tours, mean duration {stats.mean_duration:.2f} ± {stats.mean_duration_se:.2f} "
         f"(1/c = {stats.expected_duration:.2f}); log Z = {float(outcome.log_z.value):.4f} ± {float(outcome.log_z.standard_error):.4f} "
@@ -117,6 +118,10 @@ def _k_hat(estimate, i: int) -> str:
     return f"{k:.2f}" + ("" if bool(estimate.reliable[i]) else " [red]*[/]")
 
 
+@overload
+def _names(text: str) -> tuple[str, ...]: ...
+@overload
+def _names(text: None) -> None: ...
 def _names(text: str | None) -> tuple[str, ...] | None:
     return None if text is None else tuple(part.strip() for part in text.split(",") if part.strip())
 
@@ -127,7 +132,7 @@ _LANES_HELP = ", ".join(f"{n} for {m}" for m, n in METHOD_LANES.items()) + f", {
 def _lanes(text: str) -> dict[str, int]:
     """`--lanes`: `2048`, `restore=16384` or `2048,restore=16384` (a bare count sets every method)."""
     given: dict[str, int] = {}
-    for part in _names(text) or ():
+    for part in _names(text):
         name, _, count = part.rpartition("=")
         try:
             given[name.strip() or "*"] = int(count)
@@ -193,14 +198,11 @@ def bench(
     result = run_suite(config, out, progress=progress, log=None if progress else console.print)
 
     table = Table(title="Recorded ratios (jump Restore / other)")
-    for column, justify in (
-        ("ratio", "left"),
-        ("problem", "left"),
-        ("value", "right"),
-        ("goal", "right"),
-        ("met", "center"),
-    ):
-        table.add_column(column, justify=justify)
+    table.add_column("ratio", justify="left")
+    table.add_column("problem", justify="left")
+    table.add_column("value", justify="right")
+    table.add_column("goal", justify="right")
+    table.add_column("met", justify="center")
     summary_at = next((i for i, r in enumerate(result.ratios) if r.problem == "geometric mean"), None)
     for i, r in enumerate(result.ratios):
         met = {True: "[green]yes[/]", False: "[red]no[/]", None: ""}[r.met]
@@ -238,15 +240,12 @@ def _evidence(
     console.print(f"[bold]{config.name} evidence benchmark:[/] {', '.join(config.problems)}; {config.seeds} seed(s)")
     result = run_evidence(config, out, progress=progress, log=None if progress else console.print)
     table = Table(title="log Z error (estimate - truth) per seed")
-    for column, justify in (
-        ("problem", "left"),
-        ("method", "left"),
-        ("runs", "left"),
-        ("log Z error", "right"),
-        ("evaluations", "right"),
-        ("run time (s)", "right"),
-    ):
-        table.add_column(column, justify=justify)
+    table.add_column("problem", justify="left")
+    table.add_column("method", justify="left")
+    table.add_column("runs", justify="left")
+    table.add_column("log Z error", justify="right")
+    table.add_column("evaluations", justify="right")
+    table.add_column("run time (s)", justify="right")
     for s in summary_rows(result.rows):
         table.add_row(
             s["problem"],

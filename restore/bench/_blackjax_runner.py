@@ -21,7 +21,7 @@ class _Loop(NamedTuple):
     states: object
     evaluations: jnp.ndarray
     sums: jnp.ndarray
-    count: jnp.ndarray
+    num_summed: jnp.ndarray
     kept: jnp.ndarray
     num_kept: jnp.ndarray
 
@@ -99,7 +99,7 @@ class BlackJAXRunner(Runner):
                 kept_draws = jnp.where(store, c.kept.at[jnp.minimum(slot, kept - 1)].set(states.position), c.kept)
                 return _Loop(
                     c.step + 1, states, c.evaluations + jnp.sum(evals),
-                    c.sums + jnp.where(post, values, 0.0), c.count + jnp.where(post, chains, 0),
+                    c.sums + jnp.where(post, values, 0.0), c.num_summed + jnp.where(post, chains, 0),
                     kept_draws, c.num_kept + store,
                 )
 
@@ -131,7 +131,7 @@ class BlackJAXRunner(Runner):
             expected_steps = remaining / (C * per_step)
             thin = max(1, int((expected_steps - burn) // self.kept_per_chain))
             out = jax.block_until_ready(loop(k_run, states, params, jnp.asarray(remaining), burn, thin))
-        n = int(out.count)
+        n = int(out.num_summed)
         sums = np.asarray(out.sums, np.float64)
         d = problem.dim
         mean, m2 = moments_from_sums(sums[:d], sums[d : 2 * d], n)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from typing import Any
 
 from ._blackjax_runner import BlackJAXRunner
 from ._emcee_runner import EmceeRunner
@@ -103,7 +104,7 @@ class SuiteConfig:
     def runners(self, problem: Problem) -> list[Runner]:
         """The runners of this configuration that apply to `problem`, jump Restore first."""
         span = min(self.fractions) * self.full_evaluations
-        common = dict(lanes=self.lanes, span_evaluations=span)
+        common: dict[str, Any] = dict(lanes=self.lanes, span_evaluations=span)
         kernels = self.kernels if self.kernel_problems is None or problem.name in self.kernel_problems else ("rw",)
         out: list[Runner] = [JumpRestoreRunner(k, pilot_size=self.pilot_size, **common) for k in kernels]
         out += [MixtureMHRunner(k, factor=1.0, **common) for k in kernels]

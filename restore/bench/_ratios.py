@@ -65,7 +65,7 @@ def recorded_ratios(rows: list[dict], raw_rates: dict[str, float]) -> list[Ratio
         multimodal = _error_key(rows, p) == "mode_rmse"
         if multimodal:
             err = pooled_rms(r["mode_rmse"] for r in ours)
-            emcee = {}  # type: ignore[var-annotated]
+            emcee: dict[str, list[float]] = {}
             for r in _select(rows, p, family="emcee", budget="time"):
                 emcee.setdefault(r["sampler"], []).append(r["mode_rmse"])
             if emcee:
@@ -79,7 +79,7 @@ def recorded_ratios(rows: list[dict], raw_rates: dict[str, float]) -> list[Ratio
                     name = ERROR_VS_MH.format(kernel=kernel)
                     out.append(Ratio(name, p, a / b, GOALS[ERROR_VS_MH], f"mode-weight RMSE {a:.3g} vs {b:.3g}"))
         rate = float(np.median([r["evals_per_s"] for r in ours]))
-        emcee_rates = {}  # type: ignore[var-annotated]
+        emcee_rates: dict[str, list[float]] = {}
         for r in _select(rows, p, family="emcee"):
             emcee_rates.setdefault(r["sampler"], []).append(r["evals_per_s"])
         if emcee_rates:

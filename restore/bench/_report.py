@@ -60,7 +60,7 @@ def machine_description() -> dict[str, str]:
         "load average at start (1, 5, 15 min)": ", ".join(f"{x:.2f}" for x in load),
         "platform": platform.platform(),
         "python": platform.python_version(),
-        "jax": f"{jax.__version__} ({jax.default_backend()}, {jax.device_count()} device(s), float64={jax.config.jax_enable_x64})",  # type: ignore[attr-defined]
+        "jax": f"{jax.__version__} ({jax.default_backend()}, {jax.device_count()} device(s), float64={jax.config.read('jax_enable_x64')})",
         "numpy": np.__version__,
         "emcee": _version("emcee"),
         "blackjax": _version("blackjax"),

@@ -8,7 +8,7 @@ import jax
 import numpy as np
 from jaxtyping import Array, Float, PRNGKeyArray
 
-from ..regeneration import laplace_mixture
+from ..regeneration import AbstractRegeneration, laplace_mixture
 from ._problems import Problem
 
 
@@ -24,13 +24,13 @@ class StartingInformation(NamedTuple):
     """
 
     starts: Float[Array, "n d"]
-    regeneration: object
+    regeneration: AbstractRegeneration
     num_modes_found: int
 
     def initial_points(self, key: PRNGKeyArray, n: int) -> np.ndarray:
         """`n` independent draws of the regeneration distribution, as numpy (n, d)."""
         keys = jax.random.split(key, int(n))
-        return np.asarray(jax.vmap(self.regeneration.sample)(keys), np.float64)  # type: ignore[attr-defined]
+        return np.asarray(jax.vmap(self.regeneration.sample)(keys), np.float64)
 
 
 def starting_information(problem: Problem, key: PRNGKeyArray) -> StartingInformation:

@@ -10,6 +10,7 @@ import zlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Protocol
 
 import jax
 import jax.numpy as jnp
@@ -46,7 +47,14 @@ def check_dependencies(config: SuiteConfig) -> None:
         raise ImportError(f"restore bench needs {' and '.join(missing)}: pip install 'restore-mcmc[compare]'")
 
 
-def _key(config: SuiteConfig, *parts) -> jax.Array:
+
+class _Seeded(Protocol):
+    """A configuration with a base seed (`SuiteConfig`, `EvidenceConfig`)."""
+
+    @property
+    def base_seed(self) -> int: ...
+
+def _key(config: _Seeded, *parts) -> jax.Array:
     """A key per (problem, seed, sampler, budget): stable when samplers are added or removed."""
     key = jax.random.key(config.base_seed)
     for part in parts:

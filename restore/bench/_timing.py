@@ -31,9 +31,9 @@ class Stopwatch:
         self.wall = 0.0
         self.compile = 0.0
 
-    def _listen(self, event: str, start: float, end: float, **kwargs) -> None:
+    def _listen(self, event: str, start_time: float, end_time: float, **kwargs: str | int) -> None:
         if event in _COMPILE_EVENTS:
-            self._spans.append((start, end))
+            self._spans.append((start_time, end_time))
 
     def __enter__(self) -> Stopwatch:
         monitoring.register_event_time_span_listener(self._listen)

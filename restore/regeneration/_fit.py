@@ -287,8 +287,8 @@ def _mixture_fit(mix, means, covs, df, diagonal: bool) -> Fit:
         template = Gaussian(jnp.asarray(means[0], dtype), covs[0]) if df is None else StudentT(jnp.asarray(means[0], dtype), covs[0], df)
         where = (lambda c: (c.mean, c.scale_tril)) if df is None else (lambda c: (c.loc, c.scale_tril))
         components = tuple(eqx.tree_at(where, template, (jnp.asarray(m[i], dtype), jnp.asarray(f[i], dtype))) for i in range(size))
-        out = Mixture([template])
-        return eqx.tree_at(lambda u: (u.components, u.log_weights), out, (components, log_w))
+        mixture = Mixture([template])
+        return eqx.tree_at(lambda u: (u.components, u.log_weights), mixture, (components, log_w))
 
     def log_prob(y):
         logp, _ = _component_terms(np.asarray(y, np.float64), means, factor, df, diagonal)

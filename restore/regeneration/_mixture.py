@@ -23,7 +23,7 @@ def _stack(components: tuple[AbstractRegeneration, ...]) -> AbstractRegeneration
     (same class and static fields) and array leaves of equal shape and dtype.
     """
     treedefs = [jax.tree_util.tree_structure(c) for c in components]
-    if any(t != treedefs[0] for t in treedefs[1:]):
+    if len(set(treedefs)) > 1:
         return None
     leaves = [jax.tree_util.tree_leaves(c) for c in components]
     for leaf_group in zip(*leaves):

@@ -244,7 +244,7 @@ def compare_renderers(
                 runs.append(run)
                 say(f"{scene_key} {method} #{r}: {elapsed:.1f} s, {evaluations:,} paths, relative MSE {run.metrics['relative_mse']:.4g}")
     comparison = RenderComparison(
-        tuple(Path(s).stem for s in scenes), tuple(methods), float(seconds), realisations, tuple(resolution), max_depth,
+        tuple(Path(s).stem for s in scenes), tuple(methods), float(seconds), realisations, (resolution[0], resolution[1]), max_depth,
         references, runs, throughput, skipped, _settings(lanes_of, tour_length, p_large),
         technique=technique,
     )

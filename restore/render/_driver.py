@@ -271,6 +271,7 @@ def render(
             fingerprint, steps=steps_done, chunks=chunks, seconds_spent=elapsed, finishing_steps=finishing,
             finishing_evaluations=finishing_evaluations, finished=finished, finishing_seconds=finishing_seconds,
         )
+        assert checkpoint is not None  # the driver saves only with a checkpoint
         save_checkpoint(checkpoint, (state, totals), header)
 
     outcome = drive(

@@ -89,7 +89,7 @@ def small_step(mutation: AbstractTorusMutation, target: object) -> TorusMetropol
 
 def check_target(target: object, *, needs_gradient: bool = False) -> None:
     """Raise a clear error if `target` does not provide the `PSSTarget` interface."""
-    members = ("dim", "resolution", "num_pixels", "jax_evaluate", "pixel_index")
+    members: tuple[str, ...] = ("dim", "resolution", "num_pixels", "jax_evaluate", "pixel_index")
     members += ("jax_evaluate_with_pixel",) if pixel_from_evaluation(target) else ()
     missing = [m for m in members if not hasattr(target, m)]
     if missing:
@@ -111,7 +111,7 @@ def check_target(target: object, *, needs_gradient: bool = False) -> None:
         raise ValueError(f"target.frozen_coordinates must be an integer in [0, dim), got {frozen!r}")
 
 
-def pss_logdensity(target: PSSTarget) -> Callable[[Array], tuple[Array, Array]]:
+def pss_logdensity(target: PSSTarget) -> Callable[[Array], tuple[Array, Array | EvaluatedPixel]]:
     """The target as a log density of one point for the core samplers, with the colour as aux.
 
     `u (D,) -> (log lum(u), rgb(u) / lum(u))`: the value is `-inf` where the luminance is

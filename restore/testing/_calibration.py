@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
+from typing import Any
 
 import numpy as np
 from jaxtyping import Array, PRNGKeyArray
@@ -52,7 +53,9 @@ def calibration_test(
     lanes = num_replications * lanes_per_replication
     result = sample(sampler, key, num_lanes=lanes, num_steps=num_steps, observables=observables, **sample_kwargs)
     tolerance = coverage_tolerance if coverage_tolerance is not None else 3.0 * math.sqrt(0.95 * 0.05 / num_replications)
-    p_values, details, passed = {}, {}, True
+    p_values: dict[str, float] = {}
+    details: dict[str, Any] = {}
+    passed = True
     for name, (_, truth) in truths.items():
         z = np.array(
             [

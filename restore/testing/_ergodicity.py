@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
+from typing import Any
 
 import numpy as np
 from jaxtyping import Array, PRNGKeyArray
@@ -49,15 +50,17 @@ def ergodicity_test(
     observables = {name: fn for name, (fn, _) in truths.items()}
     sample_kwargs.setdefault("progress", False)
     result = sample(sampler, key, num_lanes=num_lanes, num_steps=num_steps, observables=observables, **sample_kwargs)
-    p_values, details = {}, {"result": result}
+    p_values: dict[str, float] = {}
+    details: dict[str, Any] = {"result": result}
     for name, (_, truth) in truths.items():
         z = np.atleast_1d(result.estimate(name).z_score(np.asarray(truth)))
         details[f"z {name}"] = z
         for i, p in enumerate(_two_sided_p(z).ravel()):
             p_values[f"{name}[{i}]" if z.size > 1 else name] = float(p)
-    if log_z is not None and result.is_regenerative:
+    tour_log_rate = result.tour_log_rate
+    if log_z is not None and result.is_regenerative and tour_log_rate is not None:
         stats_ = result.tour_statistics()
-        expected = math.exp(log_z - result.tour_log_rate)
+        expected = math.exp(log_z - tour_log_rate)
         z_duration = (stats_.mean_duration - expected) / stats_.mean_duration_se
         details["mean tour duration"] = (stats_.mean_duration, stats_.mean_duration_se, expected)
         p_values["mean tour duration = 1/c"] = float(_two_sided_p(np.asarray(z_duration)))

@@ -37,7 +37,7 @@ class CheckReport(NamedTuple):
 
     def __str__(self) -> str:
         verdict = "passed" if self.passed else "FAILED"
-        worst = min(self.p_values, key=self.p_values.get) if self.p_values else "-"
+        worst = min(self.p_values, key=lambda name: self.p_values[name]) if self.p_values else "-"
         return f"{verdict}: {len(self.p_values)} tests, smallest p = {self.min_p_value:.3g} ({worst}), per-test level {self.threshold:.3g}"
 
 
@@ -140,9 +140,12 @@ def stationarity_test(
         alpha: family-wise significance level.
         max_steps: cap on steps per lane.
     """
+    of_state: Callable[[Array], Array] | None
     if isinstance(logdensity, bool):
-        logdensity = getattr(sampler, "logdensity", None) if logdensity else None
-    elif not callable(logdensity):
+        of_state = getattr(sampler, "logdensity", None) if logdensity else None
+    elif callable(logdensity):
+        of_state = logdensity
+    else:
         raise TypeError(f"logdensity must be True, False or a function of one state, got {logdensity!r}")
     reference_factor = check_integer(reference_factor, "reference_factor")
     k0, k_run, k_cmp = jax.random.split(key, 3)
@@ -150,7 +153,7 @@ def stationarity_test(
     run = simulate_to_time(sampler, k_run, start, time, max_steps)
     states = np.asarray(run.states, np.float64)
     report = compare_to_target(
-        k_cmp, states, target_sample, assign_mode, mode_weights, num_projections, alpha, logdensity, reference_factor * num_lanes
+        k_cmp, states, target_sample, assign_mode, mode_weights, num_projections, alpha, of_state, reference_factor * num_lanes
     )
     report.details.update(
         num_steps=int(np.sum(run.steps)), num_bound_exceeded=run.num_bound_exceeded, num_negative_rate=run.num_negative_rate

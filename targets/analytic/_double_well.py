@@ -92,9 +92,10 @@ def envelope() -> tuple[tuple[float, float], tuple[float, float], tuple[float, f
     roots = np.sort(h_prime.r.real[np.abs(h_prime.r.imag) < 1e-12])
     locs = (float(roots[0]), float(roots[-1]))
     curvature = [-(12.0 * QUARTIC * m * m + 2.0 * QUADRATIC) for m in locs]
-    scales = tuple(ENVELOPE_WIDENING / math.sqrt(c) for c in curvature)
+    scales = (ENVELOPE_WIDENING / math.sqrt(curvature[0]), ENVELOPE_WIDENING / math.sqrt(curvature[1]))
     log_mass = np.array([log_unnormalised(m) + math.log(s) for m, s in zip(locs, scales)])
-    log_weights = tuple(float(v) for v in log_mass - np.logaddexp(*log_mass))
+    first, second = (float(v) for v in log_mass - np.logaddexp(*log_mass))
+    log_weights = (first, second)
     best = -math.inf
     for k, (lower, upper) in enumerate(((-math.inf, 0.0), (0.0, math.inf))):
         m, s = locs[k], scales[k]

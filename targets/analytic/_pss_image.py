@@ -110,7 +110,8 @@ class AnalyticImage(eqx.Module):
             raise ValueError(f"floor must be >= 0, got {floor}")
         if not (isinstance(resolution, (tuple, list)) and len(resolution) == 2):
             raise ValueError(f"resolution must be a pair (W, H), got {resolution!r}")
-        res = tuple(_checks.integer(r, "resolution", 1) for r in resolution)
+        width, height = (_checks.integer(r, "resolution", 1) for r in resolution)
+        res = (width, height)
         self.means = jnp.asarray(np.mod(m, 1.0), jnp.float32)
         self.widths = jnp.asarray(s, jnp.float32)
         self.weights = jnp.asarray(w, jnp.float32)

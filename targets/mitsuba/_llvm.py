@@ -216,7 +216,7 @@ def _karellen_libraries() -> list[Path]:
     except importlib.metadata.PackageNotFoundError:
         return []
     files = [f for f in (dist.files or []) if f.name.startswith("libLLVM")]
-    paths = [Path(dist.locate_file(f)).resolve() for f in files]
+    paths = [Path(str(dist.locate_file(f))).resolve() for f in files]
     # Prefer the versioned file (the others are symbolic links to it).
     paths.sort(key=lambda p: (llvm_major_version(p) is None, str(p)))
     return paths

@@ -320,7 +320,7 @@ def glass_torus(
     `(0, 0.6, 0)`. Light reaches the torus only through the glass (specular chains).
     """
     mi = _mi()
-    centre = np.array([0.0, 0.71, 0.0])
+    centre = (0.0, 0.71, 0.0)
     torus = torus_mesh(0.45, 0.15, segments, bsdf=_diffuse([0.8, 0.3, 0.15]), centre=centre, tilt_deg=60.0)
     return {
         "type": "scene",
@@ -329,7 +329,7 @@ def glass_torus(
         "floor": _quad(mi, [0, 0, 0], [5, 0, 0], [0, 0, -5], _diffuse([0.7, 0.7, 0.7])),
         "glass": {
             "type": "cube",
-            "to_world": mi.ScalarTransform4f().translate(centre.tolist()).scale(0.7),
+            "to_world": mi.ScalarTransform4f().translate(list(centre)).scale(0.7),
             "bsdf": {"type": "dielectric", "int_ior": 1.5, "ext_ior": 1.0},
         },
         "torus": torus,
@@ -488,7 +488,7 @@ def load_scene(
             (the message is Mitsuba's, naming the file and line).
     """
     mi = _mi()
-    if is_scene_file(spec):
+    if isinstance(spec, Path) or (isinstance(spec, str) and is_scene_file(spec)):
         return _load_xml(mi, Path(spec), resolution, max_depth, log or _logger.info)
     scene = scene_dict(spec, resolution, max_depth, log)
     try:
@@ -600,8 +600,8 @@ def _override_xml(
             ElementTree.SubElement(root, "integrator", type="path")
         for integrator in root.iter("integrator"):
             if integrator.get("type") == "path":
-                before = _set_child(integrator, "integer", "max_depth", str(_max_depth(max_depth)))
-                _note_change("maximum path depth", str(_max_depth(max_depth)), before or "-1 (unbounded)", log)
+                depth_before = _set_child(integrator, "integer", "max_depth", str(_max_depth(max_depth)))
+                _note_change("maximum path depth", str(_max_depth(max_depth)), depth_before or "-1 (unbounded)", log)
 
 
 _logger = logging.getLogger("targets.mitsuba")

@@ -98,9 +98,9 @@ def test_compaction_keeps_at_most_half_and_never_lowers_a_threshold():
     rows, offered = _steps(3, 50)
     buffer = init_exceedances(1024, WIDTH, jnp.float64)
     flat = jnp.asarray(rows[offered][:1024])
-    buffer = buffer._replace(rows=flat, lane=jnp.zeros(1024, jnp.int32), count=jnp.asarray(1024, jnp.int32))
+    buffer = buffer._replace(rows=flat, lane=jnp.zeros(1024, jnp.int32), filled=jnp.asarray(1024, jnp.int32))
     half = jax.jit(lambda b: compact(b, SCORING))(buffer)
-    assert 0 < int(half.count) <= 512
+    assert 0 < int(half.filled) <= 512
     assert np.all(np.asarray(half.threshold) > -np.inf)
     again = jax.jit(lambda b: compact(b, SCORING))(half._replace(threshold=half.threshold + 0.5))
     assert np.all(np.asarray(again.threshold) >= np.asarray(half.threshold) + 0.5)
