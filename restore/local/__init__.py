@@ -11,6 +11,7 @@ from ._base import LocalInfo as LocalInfo
 from ._base import metropolis_accept as metropolis_accept
 from ._blackjax import BlackJAXKernel as BlackJAXKernel
 from ._correlated_random_walk import CorrelatedRandomWalk as CorrelatedRandomWalk
+from ._guided_random_walk import GuidedRandomWalk as GuidedRandomWalk
 from ._hmc import HMC as HMC
 from ._mala import MALA as MALA
 from ._random_walk import RandomWalk as RandomWalk
