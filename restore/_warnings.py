@@ -3,7 +3,8 @@
 `warnings.warn`'s `stacklevel` counts frames, and the same check runs at different depths
 (`sample` called by the user, or by `autosample`, or an estimate asked of an `AutoResult`),
 so a fixed level points into the library half the time. `warn` attributes each warning
-to the first frame outside this package (and the `targets` beside it) instead.
+to the first frame outside this package (and the `targets` beside it) and the libraries its
+calls pass through (Equinox's bound methods, JAX's transformations) instead.
 
 What to do about an unreliable estimate depends on how the run was built: a hand-built
 regeneration can be replaced by `autosample`'s, while `autosample`'s own final run needs
@@ -18,10 +19,17 @@ import os
 import sys
 import warnings
 from collections.abc import Iterator
+from types import FrameType
+
+import equinox
+import jax
 
 _PACKAGE = os.path.dirname(os.path.abspath(__file__))
-#: Frames of these folders are the library's: restore and the `targets` shipped beside it.
-_LIBRARY = tuple(os.path.join(os.path.dirname(_PACKAGE), name) + os.sep for name in ("restore", "targets"))
+#: Frames of these folders are the library's: restore and the `targets` shipped beside it, and
+#: Equinox and JAX, through which a call of a module's method or a transformed function passes.
+_LIBRARY = tuple(os.path.join(os.path.dirname(_PACKAGE), name) + os.sep for name in ("restore", "targets")) + tuple(
+    os.path.dirname(os.path.abspath(module.__file__)) + os.sep for module in (equinox, jax) if module.__file__
+)
 
 #: What to do about a regeneration far from the target, for a run the user built.
 SAMPLE_ADVICE = (
@@ -53,8 +61,9 @@ def advising(text: str) -> Iterator[None]:
 
 
 def warn(message: str, category: type[Warning] = UserWarning) -> None:
-    """`warnings.warn`, attributed to the first caller outside restore and `targets` (the user's line)."""
+    """`warnings.warn`, attributed to the first caller outside restore, `targets`, Equinox and JAX (the user's line)."""
     level, frame = 2, sys._getframe(1)
-    while frame is not None and frame.f_code.co_filename.startswith(_LIBRARY):
-        frame, level = frame.f_back, level + 1
-    warnings.warn(message, category, stacklevel=level - 1 if frame is None else level)
+    caller: FrameType | None = frame
+    while caller is not None and caller.f_code.co_filename.startswith(_LIBRARY):
+        caller, level = caller.f_back, level + 1
+    warnings.warn(message, category, stacklevel=level - 1 if caller is None else level)

@@ -55,6 +55,13 @@ class AbstractLocalKernel(eqx.Module):
         """Raise a clear `ValueError` if the kernel's parameters do not fit dimension `dim`."""
 
 
+def gradient_of(point: Point) -> Array:
+    """The gradient a gradient-based kernel needs (`Point.grad`), with a clear error where it was not evaluated."""
+    if point.grad is None:
+        raise ValueError("this local kernel needs the log density's gradient, and the point was evaluated without it")
+    return point.grad
+
+
 def metropolis_accept(
     key: PRNGKeyArray, point: Point, candidate: Point, log_ratio: Array
 ) -> tuple[Point, LocalInfo]:

@@ -11,7 +11,7 @@ from jaxtyping import Array, Float, PRNGKeyArray
 
 from .._point import Point, evaluate
 from .._validation import as_scale, check_integer, check_vector_dim
-from ._base import AbstractLocalKernel, LocalInfo, metropolis_accept
+from ._base import AbstractLocalKernel, LocalInfo, gradient_of, metropolis_accept
 
 
 class _Trajectory(NamedTuple):
@@ -55,13 +55,13 @@ class HMC(AbstractLocalKernel):
         x = point.position
         eps = self.step_size.astype(x.dtype)
         p0 = jax.random.normal(key, x.shape, x.dtype) / jnp.sqrt(self.inverse_mass_matrix)
-        p = p0 + 0.5 * eps * point.grad
+        p = p0 + 0.5 * eps * gradient_of(point)
         q = x + eps * self.inverse_mass_matrix * p
 
         def inner(carry, _):
             q, p, invalid = carry
             inner_point, bad = evaluate(logdensity_fn, q, with_grad=True)
-            p = p + eps * inner_point.grad
+            p = p + eps * gradient_of(inner_point)
             q = q + eps * self.inverse_mass_matrix * p
             return (q, p, invalid | bad), None
 
@@ -70,7 +70,7 @@ class HMC(AbstractLocalKernel):
         return q, _Trajectory(p0, p, invalid)
 
     def accept(self, key: PRNGKeyArray, point: Point, candidate: Point, aux: _Trajectory) -> tuple[Point, LocalInfo]:
-        final_momentum = aux.momentum + 0.5 * self.step_size * candidate.grad
+        final_momentum = aux.momentum + 0.5 * self.step_size * gradient_of(candidate)
         log_ratio = (
             candidate.logdensity
             - self._kinetic(final_momentum)

@@ -10,7 +10,7 @@ from jaxtyping import Array, Float, PRNGKeyArray
 
 from .._point import Point
 from .._validation import as_scale, check_vector_dim
-from ._base import AbstractLocalKernel, LocalInfo, hastings_accept
+from ._base import AbstractLocalKernel, LocalInfo, gradient_of, hastings_accept
 
 
 class MALA(AbstractLocalKernel):
@@ -35,13 +35,13 @@ class MALA(AbstractLocalKernel):
 
     def _log_q(self, to: Array, start: Point) -> Array:
         """Log density (up to a constant) of proposing `to` from `start`."""
-        mean = start.position + self.step_size * start.grad
+        mean = start.position + self.step_size * gradient_of(start)
         return -jnp.sum((to - mean) ** 2 / (4.0 * self.step_size))
 
     def propose(self, key: PRNGKeyArray, point: Point, logdensity_fn: Callable) -> tuple[Array, None]:
         x = point.position
         noise = jax.random.normal(key, x.shape, x.dtype)
-        return x + self.step_size * point.grad + jnp.sqrt(2.0 * self.step_size) * noise, None
+        return x + self.step_size * gradient_of(point) + jnp.sqrt(2.0 * self.step_size) * noise, None
 
     def accept(self, key: PRNGKeyArray, point: Point, candidate: Point, aux: None) -> tuple[Point, LocalInfo]:
         return hastings_accept(key, point, candidate, self._log_q)

@@ -18,7 +18,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float, PRNGKeyArray
 
 from .._point import Point
-from ._base import AbstractLocalKernel, LocalInfo, hastings_accept, metropolis_accept
+from ._base import AbstractLocalKernel, LocalInfo, gradient_of, hastings_accept, metropolis_accept
 
 
 def wrap(u: Float[Array, ...]) -> Float[Array, ...]:
@@ -156,7 +156,7 @@ class TorusMALA(AbstractLocalKernel):
         self.step_size = h
 
     def _mean(self, point: Point) -> Float[Array, " d"]:
-        return wrap(point.position + self.step_size * point.grad)
+        return wrap(point.position + self.step_size * gradient_of(point))
 
     def _log_q(self, to: Array, start: Point) -> Float[Array, ""]:
         """`log q(start -> to)` up to a constant: a wrapped normal, summed over images."""
