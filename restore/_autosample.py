@@ -46,7 +46,7 @@ from ._compile import jit
 from ._coordinates import check_coordinates
 from ._jump_restore import JumpRestore
 from ._pareto import K_HAT_LIMIT
-from ._preconditioning import typical_scale_tril
+from ._preconditioning import guide_components, typical_scale_tril
 from ._progress import console_note
 from ._random import distribution_draws
 from ._result import SampleResult
@@ -55,7 +55,7 @@ from ._seeding import seed_draws
 from ._seeding_modes import laplace_candidates
 from ._validation import check_integer, check_key, check_logdensity
 from ._warnings import AUTOSAMPLE_ADVICE, advising
-from .local import AbstractLocalKernel, CorrelatedRandomWalk, RandomWalk
+from .local import AbstractLocalKernel, CorrelatedRandomWalk, GuidedRandomWalk, RandomWalk
 from .regeneration import (
     AbstractRegeneration,
     DiagonalMixture,
@@ -289,8 +289,13 @@ def typical_scale(regeneration: AbstractRegeneration) -> np.ndarray:
 
 
 def default_kernel(regeneration: AbstractRegeneration, d: int, dtype) -> AbstractLocalKernel:
-    """Random-walk Metropolis scaled `2.38 / sqrt(d)` to the regeneration's typical component:
-    along its correlations when its components have full covariances, else axis by axis."""
+    """Random-walk Metropolis scaled `2.38 / sqrt(d)` to the regeneration's components: with
+    several, each step sized by the components where the walk is (`GuidedRandomWalk`); with
+    one, along its correlations when it has a full covariance, else axis by axis."""
+    guide = guide_components(regeneration)
+    if guide is not None and np.sum(np.isfinite(guide[0])) > 1:
+        log_w, means, trils = (jnp.asarray(a, dtype) for a in guide)
+        return GuidedRandomWalk(log_w, means, trils, 2.38 / math.sqrt(d))
     scales = typical_scale(regeneration)
     tril = typical_scale_tril(regeneration, scales)
     if tril is not None:
@@ -382,10 +387,11 @@ def autosample(
         num_steps: steps per lane of the final run.
         observables: what the final run streams (default `x` and `x**2`).
         tour_length: mean tour duration `T` of every run.
-        local: the local kernel (default: random-walk Metropolis with scale
-            `2.38 / sqrt(d)` times the typical within-component standard deviation of
-            each stage's regeneration, along the components' correlations when they have
-            full covariances: `typical_scale_tril`).
+        local: the local kernel (default: random-walk Metropolis scaled `2.38 / sqrt(d)` to
+            each stage's fitted regeneration: with several components, steps sized and
+            oriented by the components where the walk is (`restore.local.GuidedRandomWalk`);
+            with one, along its correlations when it has a full covariance
+            (`typical_scale_tril`), else axis by axis).
         families: the regeneration families to choose from (see
             `restore.regeneration.choose_regeneration`).
         laplace: also offer, at every stage, Laplace approximations (Gaussian and

@@ -1,10 +1,11 @@
-"""The proposal factor of correlated local moves, from a regeneration's full-covariance components."""
+"""The proposal factors of local moves, from a regeneration's components: one typical factor
+(`typical_scale_tril`), or every component's, for moves sized to where the walk is (`guide_components`)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from .regeneration import AbstractRegeneration, Mixture
+from .regeneration import AbstractRegeneration, DiagonalMixture, Gaussian, Mixture, StudentT, UniformBox
 
 
 def typical_scale_tril(regeneration: AbstractRegeneration, scales: np.ndarray) -> np.ndarray | None:
@@ -32,3 +33,33 @@ def typical_scale_tril(regeneration: AbstractRegeneration, scales: np.ndarray) -
     except np.linalg.LinAlgError:
         return None
     return tril if np.all(np.isfinite(tril)) else None
+
+
+def guide_components(regeneration: AbstractRegeneration) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """`(log_weights (K,), means (K, d), scale_trils (K, d, d))` of a regeneration's components, or `None`.
+
+    Mixtures (nested ones too) are flattened, their weights multiplied; a Gaussian or
+    Student-t component gives its location and scale factor, a diagonal mixture one
+    diagonal factor per component, a uniform box a Gaussian of the box's mean and
+    standard deviations. `None` for families with no per-component factors (products of
+    one-dimensional mixtures); the guide of `restore.local.GuidedRandomWalk`.
+    """
+    if isinstance(regeneration, Mixture):
+        parts = [guide_components(c) for c in regeneration.components]
+        if any(p is None for p in parts):
+            return None
+        outer = np.asarray(regeneration.log_weights, np.float64)
+        with np.errstate(invalid="ignore"):
+            log_w = np.concatenate([w + o for (w, _, _), o in zip(parts, outer, strict=True)])  # type: ignore[misc]
+        return log_w, np.concatenate([m for _, m, _ in parts]), np.concatenate([t for _, _, t in parts])  # type: ignore[misc]
+    if isinstance(regeneration, DiagonalMixture):
+        scales = np.asarray(regeneration.scales, np.float64)
+        trils = scales[:, :, None] * np.eye(scales.shape[1])
+        return np.asarray(regeneration.log_weights, np.float64), np.asarray(regeneration.means, np.float64), trils
+    if isinstance(regeneration, (Gaussian, StudentT)):
+        mean = regeneration.mean if isinstance(regeneration, Gaussian) else regeneration.loc
+        return np.zeros(1), np.asarray(mean, np.float64)[None], np.asarray(regeneration.scale_tril, np.float64)[None]
+    if isinstance(regeneration, UniformBox):
+        low, high = np.asarray(regeneration.low, np.float64), np.asarray(regeneration.high, np.float64)
+        return np.zeros(1), (0.5 * (low + high))[None], np.diag((high - low) / np.sqrt(12.0))[None]
+    return None
