@@ -14,7 +14,13 @@ Each is run with `autosample`'s defaults (1,024 lanes, 1,000 steps); the script 
 worst moment z-score (of `x` and `x**2` against the exact moments; then the worst among the
 moments marked reliable, and how many are marked unreliable), the stages and the wall time.
 
-Usage: python examples/geometry_autosample.py [--problems gauss50,manywell16,banana10,funnel10] [--seed 0]
+With `--smc`, BlackJAX adaptive tempered SMC (4,096 particles, HMC moves, from the uniform
+prior on the same box; `restore.bench.TemperedSMCRunner`, as the evidence benchmark runs it)
+runs beside it on each problem, the peer a user would pick for `log Z`: its error and
+worst mean error are printed on a line of their own (one run gives SMC no standard error,
+so its moment errors are in units of the exact standard deviation).
+
+Usage: python examples/geometry_autosample.py [--problems gauss50,manywell16,banana10,funnel10] [--seed 0] [--smc]
 """
 
 from __future__ import annotations
@@ -120,10 +126,39 @@ def run(name: str, seed: int) -> dict:
     )
 
 
+class _BoxProblem:
+    """What `restore.bench.TemperedSMCRunner` reads of a problem: the log density, the box, its uniform points."""
+
+    def __init__(self, name: str, logdensity, half: float, d: int):
+        self.name, self.logdensity, self.dim, self.hmc_steps, self.has_wells = name, logdensity, d, 10, False
+        self.box = (np.full(d, -half), np.full(d, half))
+        self.log_box_volume = float(d * math.log(2 * half))
+
+    def uniform_points(self, key, n: int):
+        return jax.random.uniform(key, (int(n), self.dim), minval=-self.box[1][0], maxval=self.box[1][0])
+
+
+def run_smc(name: str, seed: int) -> dict:
+    """Tempered SMC on the same problem and box: `log Z` error, worst moment error (in exact
+    standard deviations: one run has no standard error), evaluations and wall time."""
+    from restore.bench import TemperedSMCRunner
+
+    logdensity, half, log_z, mean, second = PROBLEMS[name]()
+    d = mean.shape[0]
+    clock = time.perf_counter()
+    out = TemperedSMCRunner(4096).run(_BoxProblem(name, logdensity, half, d), jax.random.key(seed))
+    seconds = time.perf_counter() - clock
+    sd = np.sqrt(np.maximum(second - mean**2, 1e-300))
+    moment_sd = np.abs(np.asarray(out.mean) - mean) / sd
+    return dict(error=out.log_z - log_z, moment_sd=float(np.nanmax(moment_sd)), evaluations=out.evaluations, seconds=seconds,
+                notes=out.notes)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--problems", default="gauss50,manywell16,banana10,funnel10")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--smc", action="store_true", help="run tempered SMC beside autosample")
     args = parser.parse_args()
     print("problem     seed  log Z error       SE   |err|/SE  reliable  worst moment z (reliable ones; unreliable)  stages  final regeneration         evaluations  wall s")
     for name in args.problems.split(","):
@@ -133,6 +168,10 @@ def main() -> None:
             f"  {r['moment_z']:>14.1f} ({r['reliable_moment_z']:.1f}; {r['unreliable_moments']:>2})          {r['stages']:>6}  {r['final']:<26} {r['evaluations']:>11,}  {r['seconds']:>6.1f}",
             flush=True,
         )
+        if args.smc:
+            m = run_smc(name, args.seed)
+            print(f"{'  smc-hmc':<11} {args.seed:>4} {m['error']:>+12.4f}  (worst mean error {m['moment_sd']:.3f} sd)"
+                  f"  {m['evaluations']:>11,} evaluations  {m['seconds']:>6.1f} s  {m['notes']}", flush=True)
 
 
 if __name__ == "__main__":
