@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import sys
+import warnings
 from pathlib import Path
 from typing import overload
 
@@ -28,8 +30,15 @@ def main(
     ),
 ) -> None:
     """Restore samplers in JAX."""
+    warnings.showwarning = _show_warning
     if cache:
         _cache_compilations()
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """A warning as the command's own words: its kind and message, without the file and line of
+    the library frame it was attributed to (a command has no line of the user's to point at)."""
+    print(f"{category.__name__}: {message}", file=sys.stderr if file is None else file)
 
 
 def _cache_compilations() -> None:

@@ -36,3 +36,20 @@ def test_compiled_programs_are_cached_in_the_user_cache_unless_turned_off(tmp_pa
         assert jax.config.jax_compilation_cache_dir == str(tmp_path / "mine")
     finally:
         jax.config.update("jax_compilation_cache_dir", before)
+
+
+def test_warnings_of_a_command_show_their_kind_and_message_without_a_library_frame():
+    """A command has no line of the user's: its warnings are shown without the file and line of the
+    frame they were attributed to (typer's, once the library's frames are skipped)."""
+    import io
+    import warnings
+
+    from restore import UnreliableEstimateWarning
+    from restore.cli import _show_warning
+
+    printed = io.StringIO()
+    with warnings.catch_warnings():
+        assert CliRunner().invoke(app, ["--no-cache", "demo", "--help"]).exit_code == 0
+        assert warnings.showwarning is _show_warning
+        _show_warning(UnreliableEstimateWarning("log Z: the standard error cannot be trusted"), UnreliableEstimateWarning, "/x/typer/main.py", 1445, printed)
+    assert printed.getvalue() == "UnreliableEstimateWarning: log Z: the standard error cannot be trusted\n"
