@@ -105,6 +105,11 @@ def funnel10():
 PROBLEMS = {"gauss50": gauss50, "manywell16": manywell16, "banana10": banana10, "funnel10": funnel10}
 
 
+def _sd(mean: np.ndarray, second: np.ndarray) -> np.ndarray:
+    """The target's standard deviations from its exact first and second moments."""
+    return np.sqrt(np.maximum(second - mean**2, 1e-300))
+
+
 def run(name: str, seed: int) -> dict:
     logdensity, half, log_z, mean, second = PROBLEMS[name]()
     d = mean.shape[0]
@@ -125,7 +130,7 @@ def run(name: str, seed: int) -> dict:
         problem=name, seed=seed, error=error, se=se, z=abs(error) / se, reliable=bool(estimate.reliable),
         moment_z=float(np.nanmax(z)), reliable_moment_z=float(np.nanmax(np.where(trusted, z, np.nan), initial=0.0)),
         unreliable_moments=int(np.sum(~trusted & ~np.isnan(z))), seconds=seconds,
-        mean_sd=float(np.nanmax(np.abs(np.asarray(first.value) - mean) / np.sqrt(np.maximum(second - mean**2, 1e-300)))),
+        mean_sd=float(np.nanmax(np.abs(np.asarray(first.value) - mean) / _sd(mean, second))),
         stages=len(out.stages) - 2, final=f"{out.stages[-1].family} x{out.stages[-1].num_components}",
         evaluations=out.evaluations, healthy=out.healthy,
     )
@@ -153,7 +158,7 @@ def run_smc(name: str, seed: int) -> dict:
     clock = time.perf_counter()
     out = TemperedSMCRunner(4096).run(_BoxProblem(name, logdensity, half, d), jax.random.key(seed))
     seconds = time.perf_counter() - clock
-    sd = np.sqrt(np.maximum(second - mean**2, 1e-300))
+    sd = _sd(mean, second)
     moment_sd = np.abs(np.asarray(out.mean) - mean) / sd
     return dict(error=out.log_z - log_z, moment_sd=float(np.nanmax(moment_sd)), evaluations=out.evaluations, seconds=seconds,
                 notes=out.notes)
@@ -185,7 +190,7 @@ def run_nuts(name: str, seed: int, chains: int = 4, warmup: int = 1000, kept: in
     clock = time.perf_counter()
     positions, gradients = jax.block_until_ready(jax.jit(jax.vmap(chain))(jax.random.split(key_runs, chains), starts))
     seconds = time.perf_counter() - clock
-    sd = np.sqrt(np.maximum(second - mean**2, 1e-300))
+    sd = _sd(mean, second)
     estimate = np.asarray(positions, np.float64).reshape(-1, d).mean(axis=0)
     return dict(moment_sd=float(np.nanmax(np.abs(estimate - mean) / sd)), evaluations=int(np.sum(gradients)), seconds=seconds)
 

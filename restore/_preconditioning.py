@@ -45,13 +45,14 @@ def guide_components(regeneration: AbstractRegeneration) -> tuple[np.ndarray, np
     one-dimensional mixtures); the guide of `restore.local.GuidedRandomWalk`.
     """
     if isinstance(regeneration, Mixture):
-        parts = [guide_components(c) for c in regeneration.components]
-        if any(p is None for p in parts):
-            return None
-        outer = np.asarray(regeneration.log_weights, np.float64)
-        with np.errstate(invalid="ignore"):
-            log_w = np.concatenate([w + o for (w, _, _), o in zip(parts, outer, strict=True)])  # type: ignore[misc]
-        return log_w, np.concatenate([m for _, m, _ in parts]), np.concatenate([t for _, _, t in parts])  # type: ignore[misc]
+        parts = []
+        for component, outer in zip(regeneration.components, np.asarray(regeneration.log_weights, np.float64), strict=True):
+            part = guide_components(component)
+            if part is None:
+                return None
+            parts.append((part[0] + outer, part[1], part[2]))
+        weights, locations, factors = zip(*parts, strict=True)
+        return np.concatenate(weights), np.concatenate(locations), np.concatenate(factors)
     if isinstance(regeneration, DiagonalMixture):
         scales = np.asarray(regeneration.scales, np.float64)
         trils = scales[:, :, None] * np.eye(scales.shape[1])

@@ -62,8 +62,8 @@ def advising(text: str) -> Iterator[None]:
 
 def warn(message: str, category: type[Warning] = UserWarning) -> None:
     """`warnings.warn`, attributed to the first caller outside restore, `targets`, Equinox and JAX (the user's line)."""
-    level, frame = 2, sys._getframe(1)
-    caller: FrameType | None = frame
+    caller: FrameType | None = sys._getframe(1)
+    level = 2
     while caller is not None and caller.f_code.co_filename.startswith(_LIBRARY):
         caller, level = caller.f_back, level + 1
     warnings.warn(message, category, stacklevel=level - 1 if caller is None else level)
