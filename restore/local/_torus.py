@@ -113,7 +113,10 @@ class TorusMetropolis(AbstractLocalKernel):
         if self.frozen >= dim:
             raise ValueError(f"frozen={self.frozen} leaves no coordinate to move in dimension {dim}")
 
-    def propose(self, key: PRNGKeyArray, point: Point, logdensity_fn: Callable) -> tuple[Array, None]:
+    def propose(
+        self, key: PRNGKeyArray, point: Point, logdensity_fn: Callable[[Array], Array] | None = None
+    ) -> tuple[Array, None]:
+        """The small step from `point`; it needs no log density (`logdensity_fn` may be `None`)."""
         moved = self.mutation(key, point.position)
         if self.frozen:
             moved = moved.at[: self.frozen].set(point.position[: self.frozen])
@@ -163,7 +166,10 @@ class TorusMALA(AbstractLocalKernel):
         delta = wrap(to - self._mean(start))[..., None] + jnp.asarray(_IMAGES, to.dtype)
         return jnp.sum(jax.nn.logsumexp(-(delta**2) / (4 * self.step_size), axis=-1))
 
-    def propose(self, key: PRNGKeyArray, point: Point, logdensity_fn: Callable) -> tuple[Array, None]:
+    def propose(
+        self, key: PRNGKeyArray, point: Point, logdensity_fn: Callable[[Array], Array] | None = None
+    ) -> tuple[Array, None]:
+        """The Langevin step from `point`, from its gradient alone (`logdensity_fn` may be `None`)."""
         x = point.position
         noise = jax.random.normal(key, x.shape, x.dtype)
         return wrap(self._mean(point) + math.sqrt(2 * self.step_size) * noise), None
