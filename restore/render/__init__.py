@@ -15,13 +15,16 @@ and the local kernels are `restore.local`'s `TorusMetropolis` and `TorusMALA`:
 On a multiplexed target (`targets.mitsuba.MultiplexedBDPT`: `frozen_coordinates`,
 `pixel_from_evaluation`) small steps keep the depth and strategy, so `PSSMLT` is MMLT, and
 splats take the pixel the tracer found.
-`render` runs any of them to a time or evaluation budget; `restore.render` metrics
+`render` runs any of them to a time or evaluation budget and reports each renderer's
+diagnostics as a typed record (`RenderStatistics`: `RestoreStatistics`, `PSSMLTStatistics`,
+`ERPTStatistics`, `UniformStatistics`); `restore.render` metrics
 (`l1`, `mse`, `relative_mse`, `mrse`, `mape`, `variance_across`) compare images.
 """
 
 from ._driver import RenderResult as RenderResult
 from ._driver import render as render
 from ._erpt import ERPT as ERPT
+from ._erpt import ERPTStatistics as ERPTStatistics
 from ._film import empty_film as empty_film
 from ._film import splat as splat
 from ._mala_restore import MALARestore as MALARestore
@@ -37,6 +40,10 @@ from ._pss import PSSTarget as PSSTarget
 from ._pss import evaluate_points as evaluate_points
 from ._pss import pss_logdensity as pss_logdensity
 from ._pssmlt import PSSMLT as PSSMLT
+from ._pssmlt import PSSMLTStatistics as PSSMLTStatistics
 from ._renderer import AbstractRenderer as AbstractRenderer
+from ._renderer import RenderStatistics as RenderStatistics
 from ._restore_renderer import AbstractPSSRestore as AbstractPSSRestore
+from ._restore_renderer import RestoreStatistics as RestoreStatistics
 from ._uniform import UniformSampler as UniformSampler
+from ._uniform import UniformStatistics as UniformStatistics

@@ -26,6 +26,7 @@ from .._io import matplotlib_for, save_and_close, write_text
 from ._driver import render
 from ._methods import GRADIENT_METHODS, METHODS, P_LARGE, TOUR_LENGTH, default_lanes, make_renderer
 from ._metrics import l1, mape, mrse, mse, relative_mse, variance_across
+from ._restore_renderer import RestoreStatistics
 
 #: The primary-sample-space targets the PSS methods can run on.
 TECHNIQUES = ("path", "bdpt")
@@ -235,8 +236,8 @@ def compare_renderers(
                     shift = stamps[-1][0] - result.seconds if stamps else 0.0
                     curve = [(t - shift, e) for t, e in stamps]
                     image, elapsed, evaluations = result.image, result.seconds, result.evaluations
-                    found = dict(result.statistics, finishing_seconds=result.finishing_seconds)
-                    if "tour_k_hat" in found:
+                    if isinstance(result.statistics, RestoreStatistics):
+                        found = dict(result.statistics.as_dict(), finishing_seconds=result.finishing_seconds)
                         diagnostics = {k: float(found[k]) for k in DIAGNOSTICS}
                 run = MethodRun(
                     scene_key, method, r, image, elapsed, evaluations, _metrics(image, reference), curve, diagnostics

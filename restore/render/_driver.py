@@ -23,6 +23,7 @@ from .._validation import check_interval, check_key
 from ._pss import check_target
 from ._renderer import (
     AbstractRenderer,
+    RenderStatistics,
     check_count,
     check_lanes,
     host_params,
@@ -50,9 +51,11 @@ class RenderResult:
             zero when an earlier render of the same set-up compiled them).
         steps: renderer steps taken per lane within the budget.
         lanes: number of lanes.
-        statistics: renderer diagnostics (acceptance rate, tours, `c`, `Z_hat`, ...), with the
-            renderer's tail shape (Restore: `tour_k_hat` of its tour durations; PSSMLT: `z_k_hat`
-            of the luminance behind `Z_hat`) and a warning above `TAIL_WARNING`.
+        statistics: the renderer's diagnostics, a typed record (`RestoreStatistics`,
+            `PSSMLTStatistics`, `ERPTStatistics`, `UniformStatistics`): acceptance rate, tours,
+            `c`, `Z_hat`, ..., with the renderer's tail shape (Restore: `tour_k_hat` of its tour
+            durations; PSSMLT: `z_k_hat` of the luminance behind `Z_hat`) and a warning above
+            `TAIL_WARNING`. Read its fields as attributes; `as_dict()` gives them by name.
         interrupted: the run was stopped by Ctrl-C (KeyboardInterrupt); the image holds
             every chunk finished before it.
         finishing_steps: steps taken after the budget to complete open work (Restore's
@@ -68,7 +71,7 @@ class RenderResult:
     compile_seconds: float
     steps: int
     lanes: int
-    statistics: dict[str, float]
+    statistics: RenderStatistics
     interrupted: bool = False
     finishing_steps: int = 0
     finishing_seconds: float = 0.0
@@ -92,10 +95,6 @@ def _check_budget(seconds, evaluations):
     return seconds, evaluations
 
 
-def _as_floats(stats: dict[str, Any]) -> dict[str, float]:
-    return {k: float(np.asarray(v)) for k, v in stats.items()}
-
-
 def render(
     target,
     renderer: AbstractRenderer,
@@ -106,7 +105,7 @@ def render(
     lanes: int = 4096,
     chunk: int | None = None,
     progress: bool = True,
-    on_update: Callable[[np.ndarray, dict[str, float]], None] | None = None,
+    on_update: Callable[[np.ndarray, RenderStatistics], None] | None = None,
     checkpoint: str | os.PathLike | None = None,
     checkpoint_seconds: float | None = 60.0,
     resume: bool = True,
@@ -149,7 +148,9 @@ def render(
         lanes: parallel lanes (chains, tours or samples per step).
         chunk: steps per jitted call; default about 2^20 evaluations' worth.
         progress: show a rich progress bar.
-        on_update: called as `on_update(image, statistics)` after every chunk.
+        on_update: called as `on_update(image, statistics)` after every chunk, with the image
+            so far (`(H, W, 3)` float32) and the renderer's statistics record so far (its
+            tail diagnostics, computed once at the end, are NaN).
         checkpoint: a file to save the run to (renderer state, float64 host tallies,
             step and chunk counts, time spent), atomically, every `checkpoint_seconds`,
             at the end and on Ctrl-C. If it exists (and `resume`), the render continues
@@ -264,7 +265,7 @@ def render(
     def update() -> None:
         if on_update is not None:
             image = np.asarray(renderer.image(target, state, totals), np.float32)
-            on_update(image, _as_floats(renderer.statistics(params, totals)))
+            on_update(image, renderer.statistics(params, totals))
 
     def save(steps_done: int, elapsed: float) -> None:
         header = dict(
@@ -304,10 +305,7 @@ def render(
             if checkpoint is not None:
                 save(steps, wall)
     image = np.asarray(renderer.image(target, state, totals), np.float32)
-    statistics = _as_floats(renderer.statistics(params, totals))
-    statistics.update(renderer.tail_statistics(state, totals))
-    if renderer.finishes:
-        statistics["finishing_steps"] = float(finishing)
+    statistics = renderer.statistics(params, totals, state)
     if not interrupted:
         renderer.warn_tail(statistics)
     return RenderResult(

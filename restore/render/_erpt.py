@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -13,7 +14,7 @@ from .._point import Point
 from ..local import AbstractTorusMutation, KelemenMutation
 from ._film import empty_film, splat
 from ._pss import check_target, contributions, empty_points, evaluate_points, luminance, pixels, small_step
-from ._renderer import AbstractRenderer, check_count, check_lanes, ratio
+from ._renderer import AbstractRenderer, RenderStatistics, check_count, check_lanes, ratio
 
 
 class ERPTParams(NamedTuple):
@@ -29,6 +30,27 @@ class ERPTTally(NamedTuple):
     mutations: Int[Array, ""]
     accepted: Int[Array, ""]
     energy: Float[Array, ""]
+
+
+@dataclasses.dataclass(frozen=True)
+class ERPTStatistics(RenderStatistics):
+    """`ERPT`'s diagnostics.
+
+    Attributes:
+        seeds: uniform seed paths drawn (`N_seeds`, the image's divisor).
+        chains: Metropolis chains run.
+        acceptance_rate: the fraction of the chains' mutations accepted.
+        mean_deposition_energy: the mean deposition energy `e_d` of the rounds, in luminance.
+        chain_length: `M`, mutations per chain.
+        chains_per_seed: chains run per seed drawn.
+    """
+
+    seeds: int
+    chains: int
+    acceptance_rate: float
+    mean_deposition_energy: float
+    chain_length: int
+    chains_per_seed: float
 
 
 class ERPTState(NamedTuple):
@@ -149,12 +171,12 @@ class ERPT(AbstractRenderer):
         """`W H / N_seeds`."""
         return ratio(target.num_pixels, tally.seeds)
 
-    def statistics(self, params: ERPTParams, tally: ERPTTally) -> dict[str, Any]:
-        return {
-            "seeds": tally.seeds,
-            "chains": tally.chains,
-            "acceptance_rate": ratio(tally.accepted, tally.mutations),
-            "mean_deposition_energy": ratio(tally.energy * params.lanes, tally.chains),
-            "chain_length": self.chain_length,
-            "chains_per_seed": ratio(tally.chains, tally.seeds),
-        }
+    def statistics(self, params: ERPTParams, tally: ERPTTally, state=None) -> ERPTStatistics:
+        return ERPTStatistics(
+            seeds=int(tally.seeds),
+            chains=int(tally.chains),
+            acceptance_rate=float(ratio(tally.accepted, tally.mutations)),
+            mean_deposition_energy=float(ratio(tally.energy * params.lanes, tally.chains)),
+            chain_length=self.chain_length,
+            chains_per_seed=float(ratio(tally.chains, tally.seeds)),
+        )

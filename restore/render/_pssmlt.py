@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
-from typing import Any, ClassVar, NamedTuple
+from typing import ClassVar, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -18,6 +19,7 @@ from ._pss import check_target, contributions, evaluate_points, luminance, pixel
 from ._renderer import (
     TAIL_WARNING,
     AbstractRenderer,
+    RenderStatistics,
     bootstrap_points,
     bootstrap_size,
     check_count,
@@ -25,7 +27,6 @@ from ._renderer import (
     lane_keys,
     ratio,
     resample,
-    xp_of,
 )
 
 
@@ -57,6 +58,47 @@ class PSSMLTState(NamedTuple):
     point: Point
     params: PSSMLTParams
     tally: PSSMLTTally
+
+
+@dataclasses.dataclass(frozen=True)
+class PSSMLTStatistics(RenderStatistics):
+    """`PSSMLT`'s diagnostics (luminances in the target's units).
+
+    Attributes:
+        z_hat: `Z_hat`, the mean luminance of every uniform draw (the bootstrap's and the
+            large-step proposals'), which sets the image's brightness.
+        z_hat_relative_error: its relative standard error (trusted only where the luminance
+            has a finite variance: see `z_k_hat`).
+        z_bootstrap: the bootstrap's mean luminance alone.
+        z_bootstrap_relative_error: its relative standard error.
+        acceptance_rate: the fraction of all proposals accepted.
+        large_step_acceptance: the fraction of large steps (uniform draws) accepted.
+        small_step_acceptance: the fraction of small steps accepted.
+        p_large: the probability of a large step.
+        z_k_hat: the Pareto shape of the bootstrap's luminance tail (NaN with too few bright
+            draws, or before the render's end); above `TAIL_WARNING` a few very bright paths
+            decide `Z_hat`.
+    """
+
+    z_hat: float
+    z_hat_relative_error: float
+    z_bootstrap: float
+    z_bootstrap_relative_error: float
+    acceptance_rate: float
+    large_step_acceptance: float
+    small_step_acceptance: float
+    p_large: float
+    z_k_hat: float = math.nan
+
+    def tail_warning(self) -> str | None:
+        if not self.z_k_hat > TAIL_WARNING:
+            return None
+        return (
+            "PSSMLT's estimate of the image's brightness Z_hat rests on a heavy-tailed luminance (tail shape "
+            f"k_hat = {self.z_k_hat:.2f} > {TAIL_WARNING} over the bootstrap): a few very bright paths decide "
+            f"it, and its relative error {self.z_hat_relative_error:.2g} is not to be trusted; raise "
+            "n_bootstrap, or compare realisations"
+        )
 
 
 class PSSMLT(AbstractRenderer):
@@ -181,30 +223,23 @@ class PSSMLT(AbstractRenderer):
         """`W H Z_hat / (lanes x steps)`."""
         return ratio(target.num_pixels * self.z_hat(params, tally), tally.lane_steps)
 
-    def tail_statistics(self, state: PSSMLTState, tally: PSSMLTTally) -> dict[str, float]:
-        """`z_k_hat`: the Pareto shape of the bootstrap's luminance tail, fitted to its largest
-        positive values (NaN with too few draws or fewer than 6 bright ones)."""
-        largest = np.asarray(state.params.largest_luminance, np.float64)
-        return {"z_k_hat": pareto_k(largest[np.isfinite(largest) & (largest > 0)], int(state.params.n_bootstrap))}
-
-    def tail_message(self, statistics: dict[str, float]) -> str:
-        return (
-            "PSSMLT's estimate of the image's brightness Z_hat rests on a heavy-tailed luminance (tail shape "
-            f"k_hat = {statistics['z_k_hat']:.2f} > {TAIL_WARNING} over the bootstrap): a few very bright paths decide "
-            f"it, and its relative error {statistics['z_hat_relative_error']:.2g} is not to be trusted; raise "
-            "n_bootstrap, or compare realisations"
-        )
-
-    def statistics(self, params: PSSMLTParams, tally: PSSMLTTally) -> dict[str, Any]:
-        xp = xp_of(*jax.tree.leaves(tally))
+    def statistics(self, params: PSSMLTParams, tally: PSSMLTTally, state: PSSMLTState | None = None) -> PSSMLTStatistics:
+        """The acceptances and `Z_hat`; with the final `state`, `z_k_hat`: the Pareto shape of the
+        bootstrap's luminance tail, fitted to its largest positive values (NaN with too few
+        draws or fewer than 6 bright ones)."""
         draws = params.n_bootstrap + tally.large_steps
-        return {
-            "z_hat": self.z_hat(params, tally),
-            "z_hat_relative_error": params.z_hat_error * xp.sqrt(params.n_bootstrap / draws),
-            "z_bootstrap": params.z_hat,
-            "z_bootstrap_relative_error": params.z_hat_error,
-            "acceptance_rate": ratio(tally.accepted, tally.lane_steps),
-            "large_step_acceptance": ratio(tally.large_accepted, tally.large_steps),
-            "small_step_acceptance": ratio(tally.accepted - tally.large_accepted, tally.lane_steps - tally.large_steps),
-            "p_large": self.p_large,
-        }
+        z_k_hat = math.nan
+        if state is not None:
+            largest = np.asarray(state.params.largest_luminance, np.float64)
+            z_k_hat = pareto_k(largest[np.isfinite(largest) & (largest > 0)], int(state.params.n_bootstrap))
+        return PSSMLTStatistics(
+            z_hat=float(self.z_hat(params, tally)),
+            z_hat_relative_error=float(params.z_hat_error * np.sqrt(params.n_bootstrap / draws)),
+            z_bootstrap=float(params.z_hat),
+            z_bootstrap_relative_error=float(params.z_hat_error),
+            acceptance_rate=float(ratio(tally.accepted, tally.lane_steps)),
+            large_step_acceptance=float(ratio(tally.large_accepted, tally.large_steps)),
+            small_step_acceptance=float(ratio(tally.accepted - tally.large_accepted, tally.lane_steps - tally.large_steps)),
+            p_large=self.p_large,
+            z_k_hat=z_k_hat,
+        )

@@ -8,12 +8,14 @@ A renderer state is a NamedTuple with (at least) two fields the driver relies on
   hold more than one chunk.
 The image is `scale(params, totals) * film`, a formula written with arithmetic operators
 only so it works on device arrays (inside `jit`) and on NumPy host totals alike.
+`statistics(params, totals)` reads the diagnostics off the host totals into a typed record,
+a `RenderStatistics`.
 """
 
 from __future__ import annotations
 
 import abc
-import math
+import dataclasses
 from typing import Any, ClassVar
 
 import equinox as eqx
@@ -115,6 +117,25 @@ def bootstrap_size(num: int, lanes: int) -> int:
     return -(-num // size) * size
 
 
+@dataclasses.dataclass(frozen=True)
+class RenderStatistics:
+    """A renderer's diagnostics: a frozen record of Python numbers, one subclass per renderer
+    family (`RestoreStatistics`, `PSSMLTStatistics`, `ERPTStatistics`, `UniformStatistics`).
+
+    Read the fields as attributes (`result.statistics.tours_completed`); `as_dict()` gives
+    them by name, for tables and logs. Rates and ratios are NaN where there is no data yet.
+    """
+
+    def as_dict(self) -> dict[str, float]:
+        """The fields by name, in declaration order."""
+        return {field.name: getattr(self, field.name) for field in dataclasses.fields(self)}
+
+    def tail_warning(self) -> str | None:
+        """What `render` warns (`UnreliableEstimateWarning`) when a few samples decide the image:
+        the renderer's tail shape is above `TAIL_WARNING`; None otherwise, and by default."""
+        return None
+
+
 class AbstractRenderer(eqx.Module):
     """A PSS renderer: `init(target, key, lanes)`, `step(target, key, state)`, `image`.
 
@@ -125,7 +146,7 @@ class AbstractRenderer(eqx.Module):
     """
 
     uses_gradient: ClassVar[bool] = False
-    #: the statistic of `tail_statistics` that `warn_tail` checks against `TAIL_WARNING` (none by default)
+    #: the field of the renderer's statistics holding its tail shape (none by default)
     tail_statistic: ClassVar[str | None] = None
     #: whether `finish` has work to do after the budget (then `render` calls it)
     finishes: ClassVar[bool] = False
@@ -151,24 +172,18 @@ class AbstractRenderer(eqx.Module):
         """The factor turning the film sum into the image estimate (see each renderer)."""
 
     @abc.abstractmethod
-    def statistics(self, params, tally) -> dict[str, Any]:
-        """Renderer diagnostics (acceptance rate, tours, ...), from params and tally sums."""
+    def statistics(self, params, tally, state=None) -> RenderStatistics:
+        """The renderer's diagnostics (acceptance rate, tours, ...) from host-side params and
+        tally totals (`host_params`, `host_tally`). With the final `state` (after a render)
+        they include the tail diagnostics read off the state (e.g. Restore's tail shape of
+        the tour durations), NaN without it."""
 
-    def tail_statistics(self, state, tally) -> dict[str, float]:
-        """Diagnostics read off the state after a render (host-side; e.g. Restore's tail shape
-        of the tour durations), from the state and the host `tally` totals; none by default."""
-        return {}
-
-    def tail_message(self, statistics: dict[str, float]) -> str:
-        """What `warn_tail` says: which estimate a few samples decide, and what to do."""
-        name = self.tail_statistic or ""
-        return f"a few samples decide this image: {name} = {statistics.get(name, math.nan):.2f} > {TAIL_WARNING}"
-
-    def warn_tail(self, statistics: dict[str, float]) -> None:
-        """Warn (`UnreliableEstimateWarning`) when the renderer's `tail_statistic` is above
-        `TAIL_WARNING`: a few samples then decide the image."""
-        if self.tail_statistic is not None and statistics.get(self.tail_statistic, math.nan) > TAIL_WARNING:
-            warn(self.tail_message(statistics), UnreliableEstimateWarning)
+    def warn_tail(self, statistics: RenderStatistics) -> None:
+        """Warn (`UnreliableEstimateWarning`) when a few samples decide the image
+        (`statistics.tail_warning()`)."""
+        message = statistics.tail_warning()
+        if message is not None:
+            warn(message, UnreliableEstimateWarning)
 
     def check(self, params) -> None:
         """Raise `ValueError` if `init` found the target unusable (host-side, concrete params)."""

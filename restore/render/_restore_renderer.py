@@ -73,6 +73,7 @@ memoryless tours; the start removes the rest.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any, ClassVar, NamedTuple
 
@@ -94,6 +95,7 @@ from ._pss import check_target, contributions, frozen_coordinates, luminance, pi
 from ._renderer import (
     TAIL_WARNING,
     AbstractRenderer,
+    RenderStatistics,
     bootstrap_points,
     bootstrap_size,
     check_count,
@@ -101,7 +103,6 @@ from ._renderer import (
     lane_keys,
     ratio,
     resample,
-    xp_of,
 )
 
 #: The buffer of the longest tours holds this many durations per lane (at least `MIN_TAIL_ROWS`).
@@ -221,6 +222,64 @@ def _end_tours(state, duration: Float[Array, " N"], ended: Bool[Array, " N"], la
         duration=state.tally.duration + jnp.sum(finished), duration_sq=state.tally.duration_sq + jnp.sum(finished**2)
     )
     return dict(tails=tails, tour_duration=jnp.where(ended, 0.0, duration), tally=tally)
+
+
+@dataclasses.dataclass(frozen=True)
+class RestoreStatistics(RenderStatistics):
+    """The diagnostics of a Restore render (`MetropolisRestore`, `MALARestore`); luminances
+    are in the target's units, durations in the continuous time of the tours.
+
+    Attributes:
+        rate: `c`, the kill-rate constant (`gamma = c / lum`), in luminance.
+        tour_length_target: `L`, the mean local moves per tour asked for (NaN with `rate` given).
+        z_bootstrap: the bootstrap's mean luminance `Z_hat` that set `c` (NaN if `c` was given).
+        z_bootstrap_relative_error: its relative standard error.
+        mean_tour_length: local moves per tour, whose theoretical value is `Z / c` (complete
+            tours: counted moves over counted tours; open tours: Rao-Blackwellised,
+            `(lane_steps - K) / K`).
+        z_estimate: `c x mean_tour_length`, an estimate of `Z` in luminance.
+        tours_started: tours started (the lanes' first ones included).
+        tours_completed: tours finished (regenerations).
+        tours_per_lane: the Rao-Blackwellised number of finished tours `K` per lane.
+        completed_tour_mean: local moves per finished tour (finished tours only: biased towards
+            short tours in short runs).
+        completed_tour_cv: their coefficient of variation (standard deviation over mean).
+        acceptance_rate: the fraction of local moves accepted.
+        tour_k_hat: the Pareto shape of the finished tours' durations `T` (NaN with too few
+            tours, or before the render's end); above `TAIL_WARNING` a few long tours dominate
+            the image.
+        effective_tours: Kish's effective number of tours `(sum T)^2 / sum T^2` (NaN before the
+            render's end).
+        tour_duration_mean: `sum T / N`, the mean tour duration (expected: `Z / c`; NaN before
+            the render's end).
+    """
+
+    rate: float
+    tour_length_target: float
+    z_bootstrap: float
+    z_bootstrap_relative_error: float
+    mean_tour_length: float
+    z_estimate: float
+    tours_started: int
+    tours_completed: int
+    tours_per_lane: float
+    completed_tour_mean: float
+    completed_tour_cv: float
+    acceptance_rate: float
+    tour_k_hat: float = math.nan
+    effective_tours: float = math.nan
+    tour_duration_mean: float = math.nan
+
+    def tail_warning(self) -> str | None:
+        if not self.tour_k_hat > TAIL_WARNING:
+            return None
+        return (
+            "a few long tours dominate this image: the tail shape of the tour durations is k_hat = "
+            f"{self.tour_k_hat:.2f} > {TAIL_WARNING}, and the light rests on about "
+            f"{self.effective_tours:,.0f} effective tours; its noise does not average out like a mean of "
+            "many tours, and another render can differ by more than this one's noise suggests: render longer, and "
+            "compare realisations"
+        )
 
 
 class AbstractPSSRestore(AbstractRenderer):
@@ -473,38 +532,12 @@ class AbstractPSSRestore(AbstractRenderer):
             return ratio(target.num_pixels * params.rate, tally.kills)
         return ratio(target.num_pixels * params.rate, tally.kill_probability)
 
-    def tail_statistics(self, state: RestoreRenderState, tally: RestoreTally) -> dict[str, float]:
-        """Of the finished tours' durations `T` (module docstring): `tour_k_hat`, their Pareto
-        shape (NaN with too few tours); `effective_tours`, `(sum T)^2 / sum T^2`;
-        `tour_duration_mean`, `sum T / N` (expected: `Z / c`); from the buffer of the
-        longest tours and the host totals."""
-        tours, total, squares = int(tally.kills), float(tally.duration), float(tally.duration_sq)
-        longest = largest(jax.tree.map(np.asarray, state.tails), 0).column(0, 0)
-        return {
-            "tour_k_hat": pareto_k(longest, tours) if tours else math.nan,
-            "effective_tours": total**2 / squares if squares > 0 else math.nan,
-            "tour_duration_mean": total / tours if tours else math.nan,
-        }
-
-    def tail_message(self, statistics: dict[str, float]) -> str:
-        return (
-            "a few long tours dominate this image: the tail shape of the tour durations is k_hat = "
-            f"{statistics['tour_k_hat']:.2f} > {TAIL_WARNING}, and the light rests on about "
-            f"{statistics['effective_tours']:,.0f} effective tours; its noise does not average out like a mean of "
-            "many tours, and another render can differ by more than this one's noise suggests: render longer, and "
-            "compare realisations"
-        )
-
-    def statistics(self, params: RestoreParams, tally: RestoreTally) -> dict[str, Any]:
-        """Tour and move statistics.
-
-        `mean_tour_length` is the local moves per tour, whose theoretical value is `Z / c`
-        (complete tours: counted moves over counted tours; open tours: Rao-Blackwellised,
-        `(lane_steps - K) / K`); `z_estimate = c` times it.
-        `completed_tour_mean` and `completed_tour_cv` describe finished tours only (biased
-        towards short tours in short runs).
-        """
-        xp = xp_of(*jax.tree.leaves(tally))
+    def statistics(
+        self, params: RestoreParams, tally: RestoreTally, state: RestoreRenderState | None = None
+    ) -> RestoreStatistics:
+        """Tour and move statistics (`RestoreStatistics`); with the final `state`, those of the
+        finished tours' durations `T` too (module docstring): `tour_k_hat`, their Pareto shape,
+        fitted to the buffer of the longest tours; `effective_tours`; `tour_duration_mean`."""
         k = tally.kill_probability
         if self.complete_tours:  # counted tours only: their local moves per tour
             mean_length = ratio(tally.local_moves, tally.kills)
@@ -512,17 +545,27 @@ class AbstractPSSRestore(AbstractRenderer):
             mean_length = ratio(tally.lane_steps - k, k)
         completed_mean = ratio(tally.completed_moves, tally.kills)
         second = ratio(tally.completed_moves_sq, tally.kills)
-        return {
-            "rate": params.rate,
-            "tour_length_target": self.tour_length if self.rate is None else float("nan"),
-            "z_bootstrap": params.z_bootstrap,
-            "z_bootstrap_relative_error": params.z_bootstrap_error,
-            "mean_tour_length": mean_length,
-            "z_estimate": params.rate * mean_length,
-            "tours_started": params.lanes + tally.restarts,
-            "tours_completed": tally.kills,
-            "tours_per_lane": ratio(k, params.lanes),
-            "completed_tour_mean": completed_mean,
-            "completed_tour_cv": ratio(xp.sqrt(xp.maximum(second - completed_mean**2, 0.0)), completed_mean),
-            "acceptance_rate": ratio(tally.accepted, tally.local_moves),
-        }
+        k_hat = effective = duration_mean = math.nan
+        if state is not None:
+            tours, total, squares = int(tally.kills), float(tally.duration), float(tally.duration_sq)
+            longest = largest(jax.tree.map(np.asarray, state.tails), 0).column(0, 0)
+            k_hat = pareto_k(longest, tours) if tours else math.nan
+            effective = total**2 / squares if squares > 0 else math.nan
+            duration_mean = total / tours if tours else math.nan
+        return RestoreStatistics(
+            rate=float(params.rate),
+            tour_length_target=self.tour_length if self.rate is None else math.nan,
+            z_bootstrap=float(params.z_bootstrap),
+            z_bootstrap_relative_error=float(params.z_bootstrap_error),
+            mean_tour_length=float(mean_length),
+            z_estimate=float(params.rate * mean_length),
+            tours_started=int(params.lanes + tally.restarts),
+            tours_completed=int(tally.kills),
+            tours_per_lane=float(ratio(k, params.lanes)),
+            completed_tour_mean=float(completed_mean),
+            completed_tour_cv=float(ratio(np.sqrt(np.maximum(second - completed_mean**2, 0.0)), completed_mean)),
+            acceptance_rate=float(ratio(tally.accepted, tally.local_moves)),
+            tour_k_hat=k_hat,
+            effective_tours=effective,
+            tour_duration_mean=duration_mean,
+        )

@@ -12,6 +12,7 @@ import math
 
 from ._driver import RenderResult
 from ._renderer import TAIL_WARNING, AbstractRenderer
+from ._restore_renderer import RestoreStatistics
 
 #: What each renderer's tail statistic is the Pareto shape of.
 _TAIL_OF = {"tour_k_hat": "tour durations", "z_k_hat": "luminance behind Z_hat"}
@@ -44,14 +45,13 @@ def render_rows(result: RenderResult, renderer: AbstractRenderer, scene_seconds:
         ("time", time_split(parts)),
     ]
     stats = result.statistics
-    if "tours_completed" in stats:
-        effective = stats.get("effective_tours", math.nan)
-        rows.append(("tours", f"{stats['tours_completed']:,.0f} ({effective:,.0f} effective)"))
+    if isinstance(stats, RestoreStatistics):
+        rows.append(("tours", f"{stats.tours_completed:,.0f} ({stats.effective_tours:,.0f} effective)"))
     name = renderer.tail_statistic
     if name is None:
         rows.append(("reliable", f"not checked: {type(renderer).__name__} has no tail diagnostic"))
     else:
-        k_hat = stats.get(name, math.nan)
+        k_hat = float(getattr(stats, name, math.nan))
         rows.append(("k_hat", f"{k_hat:.2f} (Pareto shape of the {_TAIL_OF.get(name, name)})"))
         rows.append(("reliable", reliability(k_hat)))
     return rows

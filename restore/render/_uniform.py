@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+import dataclasses
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -11,7 +12,7 @@ from jaxtyping import Array, Float, Int, PRNGKeyArray
 from .._point import Point
 from ._film import empty_film, splat
 from ._pss import check_target, contributions, empty_points, evaluate_points, luminance, pixels
-from ._renderer import AbstractRenderer, check_lanes, ratio
+from ._renderer import AbstractRenderer, RenderStatistics, check_lanes, ratio
 
 
 class UniformParams(NamedTuple):
@@ -24,6 +25,19 @@ class UniformTally(NamedTuple):
     film: Float[Array, "P 3"]
     samples: Int[Array, ""]
     black: Int[Array, ""]
+
+
+@dataclasses.dataclass(frozen=True)
+class UniformStatistics(RenderStatistics):
+    """`UniformSampler`'s diagnostics.
+
+    Attributes:
+        samples: points drawn (each one target evaluation).
+        black_fraction: the fraction of them with zero luminance (paths that found no light).
+    """
+
+    samples: int
+    black_fraction: float
 
 
 class UniformState(NamedTuple):
@@ -70,5 +84,5 @@ class UniformSampler(AbstractRenderer):
         """`W H / N`."""
         return ratio(target.num_pixels, tally.samples)
 
-    def statistics(self, params: UniformParams, tally: UniformTally) -> dict[str, Any]:
-        return {"samples": tally.samples, "black_fraction": ratio(tally.black, tally.samples)}
+    def statistics(self, params: UniformParams, tally: UniformTally, state=None) -> UniformStatistics:
+        return UniformStatistics(samples=int(tally.samples), black_fraction=float(ratio(tally.black, tally.samples)))

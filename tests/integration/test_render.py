@@ -18,7 +18,7 @@ import restore.render as rr
 from restore.local import KelemenMutation, TorusMALA, WrappedGaussianMutation, metropolis_accept
 from restore.regeneration import AbstractRegeneration
 from restore.render._driver import _programs
-from restore.render._renderer import host_params
+from restore.render._renderer import host_params, host_tally
 from targets import AnalyticImage
 
 TARGET = AnalyticImage.default(dim=3, resolution=(8, 8), num_bumps=3)
@@ -29,19 +29,21 @@ ALPHA = 1e-3  # family-wise level of the block test
 
 def realisations(renderer, lanes, steps, seed=0, target=TARGET, r=R):
     """`r` independent renders of `steps // 4` and of `steps` steps (fixed keys; one
-    compilation: the step count is traced), and the statistics of the longer ones."""
+    compilation: the step count is traced), and the statistics of the longer ones, each
+    field as an array over the realisations."""
 
     @jax.jit
     def one(key, n):
         k_init, k_run, k_finish = jax.random.split(key, 3)
         state = renderer.run(target, k_run, renderer.init(target, k_init, lanes), n)
         state, _ = renderer.finish(target, k_finish, state)  # Restore's open tours (others: nothing)
-        return renderer.image(target, state), renderer.statistics(state.params, state.tally)
+        return renderer.image(target, state), (state.params, state.tally)
 
     keys = jax.random.split(jax.random.key(seed), r)
     early = np.stack([np.asarray(one(k, steps // 4)[0], np.float64) for k in keys])
-    late, statistics = zip(*(one(k, steps) for k in keys))
-    statistics = {name: np.array([float(s[name]) for s in statistics]) for name in statistics[0]}
+    late, sums = zip(*(one(k, steps) for k in keys))
+    records = [renderer.statistics(host_params(params), host_tally(tally)).as_dict() for params, tally in sums]
+    statistics = {name: np.array([float(s[name]) for s in records]) for name in records[0]}
     return early, np.stack([np.asarray(im, np.float64) for im in late]), statistics
 
 
@@ -337,14 +339,14 @@ def test_driver_stops_on_the_evaluation_budget_and_reports_progress():
     budget = renderer.init_cost(lanes) + 37 * lanes
     result = rr.render(
         TARGET, renderer, key=jax.random.key(0), evaluations=budget, lanes=lanes, chunk=10, progress=False,
-        on_update=lambda image, st: updates.append((image.shape, st["tours_completed"])),
+        on_update=lambda image, st: updates.append((image.shape, st.tours_completed)),
     )
     assert result.evaluations == budget and result.steps == 37
     assert len(updates) == 4 and all(shape == (8, 8, 3) for shape, _ in updates)
     assert [t for _, t in updates] == sorted(t for _, t in updates)  # progressive: tours accumulate
     assert result.image.shape == (8, 8, 3) and result.image.dtype == np.float32
     assert np.all(np.isfinite(result.image)) and result.compile_seconds > 0 and result.seconds > 0
-    assert {"rate", "z_bootstrap", "acceptance_rate", "tours_completed"} <= set(result.statistics)
+    assert isinstance(result.statistics, rr.RestoreStatistics) and result.statistics.tours_completed == updates[-1][1]
     # a budget that is not a whole number of steps is never exceeded
     odd = rr.render(TARGET, rr.UniformSampler(), key=jax.random.key(1), evaluations=1000, lanes=64, progress=False)
     assert odd.evaluations == 960 and odd.steps == 15
@@ -370,10 +372,10 @@ def test_driver_finishes_every_open_tour_in_smaller_batches(lanes, monkeypatch):
     updates: list[float] = []
     budget = renderer.init_cost(lanes) + 40 * lanes
     result = rr.render(TARGET, renderer, key=jax.random.key(3), evaluations=budget, lanes=lanes, chunk=10,
-                       progress=False, on_update=lambda image, st: updates.append(st["tours_completed"]))
+                       progress=False, on_update=lambda image, st: updates.append(st.tours_completed))
     st = result.statistics
-    assert result.steps == 40 and result.finishing_steps > 0 and st["finishing_steps"] == result.finishing_steps
-    assert st["tours_started"] == st["tours_completed"] == updates[-1] and len(updates) == 5
+    assert isinstance(st, rr.RestoreStatistics) and result.steps == 40 and result.finishing_steps > 0
+    assert st.tours_started == st.tours_completed == updates[-1] and len(updates) == 5
     # each call ran on the smallest batch holding its open tours (4096 lanes: 1024, then 256)
     rungs = driver.finishing_rungs(lanes)
     assert rungs == ((128,) if lanes == 512 else (1024, 256))
@@ -473,7 +475,7 @@ def test_ctrl_c_keeps_the_finished_chunks():
     calls = []
 
     def interrupt_on_second_update(image, stats):
-        calls.append(stats["tours_completed"])
+        calls.append(stats.tours_completed)
         if len(calls) == 2:
             raise KeyboardInterrupt
 

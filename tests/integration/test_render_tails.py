@@ -88,14 +88,15 @@ def test_total_duration_of_complete_tours_is_z_over_c():
     result = rr.render(TARGET, renderer, key=jax.random.key(2), evaluations=renderer.init_cost(lanes) + steps * lanes,
                        lanes=lanes, progress=False)
     st = result.statistics
-    tours = st["tours_completed"]
-    assert tours == st["tours_started"] and result.finishing_steps > 0
-    mean = TARGET.Z / st["rate"]  # E[T] = Z / c
+    assert isinstance(st, rr.RestoreStatistics)
+    tours = st.tours_completed
+    assert tours == st.tours_started and result.finishing_steps > 0
+    mean = TARGET.Z / st.rate  # E[T] = Z / c
     # the relative standard error of a mean of N terms with Kish's effective size n is
     # sqrt(1 / n - 1 / N) (the terms' coefficient of variation over sqrt(N))
-    relative_se = math.sqrt(1 / st["effective_tours"] - 1 / tours)
-    assert abs(st["tour_duration_mean"] / mean - 1) < 4 * relative_se, (st["tour_duration_mean"], mean, relative_se)
-    assert 1 < st["effective_tours"] < tours and st["tour_k_hat"] < TAIL_WARNING, st
+    relative_se = math.sqrt(1 / st.effective_tours - 1 / tours)
+    assert abs(st.tour_duration_mean / mean - 1) < 4 * relative_se, (st.tour_duration_mean, mean, relative_se)
+    assert 1 < st.effective_tours < tours and st.tour_k_hat < TAIL_WARNING, st
 
 
 @pytest.mark.parametrize("a, heavy", [(0.3, False), (0.95, True)])
@@ -108,7 +109,8 @@ def test_heavy_tailed_tours_are_flagged(a, heavy):
         result = rr.render(PowerImage(a), renderer, key=jax.random.key(0), evaluations=4096 + 256 * 400,
                            lanes=256, progress=False)
     flagged = [w for w in caught if issubclass(w.category, UnreliableEstimateWarning)]
-    k = result.statistics["tour_k_hat"]
+    assert isinstance(result.statistics, rr.RestoreStatistics)
+    k = result.statistics.tour_k_hat
     if heavy:
         assert k > TAIL_WARNING and len(flagged) == 1 and "few long tours" in str(flagged[0].message), k
     else:
@@ -125,7 +127,8 @@ def test_pssmlt_reports_the_tail_of_the_luminance_behind_its_z_hat(a):
         result = rr.render(PowerImage(a), rr.PSSMLT(n_bootstrap=65536), key=jax.random.key(1),
                            evaluations=65536 + 256 * 4, lanes=256, progress=False)
     flagged = [w for w in caught if issubclass(w.category, UnreliableEstimateWarning)]
-    k = result.statistics["z_k_hat"]
+    assert isinstance(result.statistics, rr.PSSMLTStatistics)
+    k = result.statistics.z_k_hat
     assert abs(k - a) < 0.15, k
     assert len(flagged) == (a > 0.5) and all("Z_hat" in str(w.message) for w in flagged)
 
@@ -133,4 +136,4 @@ def test_pssmlt_reports_the_tail_of_the_luminance_behind_its_z_hat(a):
 def test_renderers_without_tours_report_no_tail():
     result = rr.render(TARGET, rr.PSSMLT(n_bootstrap=1024), key=jax.random.key(0), evaluations=1024 + 64 * 20,
                        lanes=64, progress=False)
-    assert "tour_k_hat" not in result.statistics
+    assert isinstance(result.statistics, rr.PSSMLTStatistics) and not hasattr(result.statistics, "tour_k_hat")

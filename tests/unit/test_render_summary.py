@@ -5,19 +5,27 @@ time split must account for the budget and the finishing separately, and the ver
 follow the renderer's tail statistic across `TAIL_WARNING`.
 """
 
+import dataclasses
+import math
+
 import numpy as np
 import pytest
 
-from restore.render import RenderResult
+from restore.render import ERPTStatistics, PSSMLTStatistics, RenderResult, RestoreStatistics, UniformStatistics
 from restore.render._methods import make_renderer
 from restore.render._renderer import TAIL_WARNING
 from restore.render._summary import native_rows, reliability, render_rows
 
 
+def record(kind, **values):
+    """A statistics record of `kind` with the given fields, NaN elsewhere."""
+    return kind(**{**{field.name: math.nan for field in dataclasses.fields(kind)}, **values})
+
+
 def result(**changes):
     fields = dict(
         image=np.zeros((2, 2, 3), np.float32), evaluations=1_200_000, seconds=10.0, compile_seconds=6.5, steps=100,
-        lanes=8192, statistics={"tours_completed": 80_000.0, "effective_tours": 3_000.0, "tour_k_hat": 0.3},
+        lanes=8192, statistics=record(RestoreStatistics, tours_completed=80_000, effective_tours=3_000.0, tour_k_hat=0.3),
         finishing_seconds=2.0,
     )  # fmt: skip
     return RenderResult(**{**fields, **changes})
@@ -36,15 +44,15 @@ def test_the_verdict_follows_the_tail_statistic():
     assert reliability(TAIL_WARNING - 0.01).startswith("yes")
     assert reliability(TAIL_WARNING + 0.01).startswith("no")
     assert reliability(float("nan")).startswith("unknown")
-    heavy = result(statistics={"z_k_hat": 1.2}, finishing_seconds=0.0)
+    heavy = result(statistics=record(PSSMLTStatistics, z_k_hat=1.2), finishing_seconds=0.0)
     rows = dict(render_rows(heavy, make_renderer("pssmlt"), scene_seconds=1.0))
     assert rows["reliable"].startswith("no") and "luminance" in rows["k_hat"]
     assert "tours" not in rows and "finishing" not in rows["time"] and rows["paths/s"] == "120,000 (budget)"
 
 
-@pytest.mark.parametrize("method", ["uniform", "erpt"])
-def test_renderers_without_a_tail_diagnostic_say_so(method):
-    rows = dict(render_rows(result(statistics={}, finishing_seconds=0.0), make_renderer(method), scene_seconds=0.0))
+@pytest.mark.parametrize("method, kind", [("uniform", UniformStatistics), ("erpt", ERPTStatistics)])
+def test_renderers_without_a_tail_diagnostic_say_so(method, kind):
+    rows = dict(render_rows(result(statistics=record(kind), finishing_seconds=0.0), make_renderer(method), scene_seconds=0.0))
     assert "k_hat" not in rows and rows["reliable"].startswith("not checked")
 
 
