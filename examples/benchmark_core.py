@@ -29,7 +29,7 @@ from targets.analytic import well_separated_gaussian_mixture  # noqa: E402
 
 def sampler_rate(sampler, lanes: int, steps: int, repeats: int) -> float:
     """Evaluations (= steps) per second of restore.sample, compilation excluded."""
-    kwargs = dict(num_lanes=lanes, num_steps=steps, progress=False, max_draws=0, num_chunks=1, finish_tours=False)
+    kwargs = dict(num_lanes=lanes, num_steps=steps, progress=False, save=restore.SaveDraws(0), num_chunks=1, finish_tours=False)
     restore.sample(sampler, jax.random.key(0), **kwargs)  # compile
     times = [restore.sample(sampler, jax.random.key(i + 1), **kwargs).wall_time for i in range(repeats)]
     return lanes * steps / float(np.median(times))
@@ -68,7 +68,7 @@ def main() -> None:
         for name, sampler in (("restore", jr), ("mh", mh)):
             result = restore.sample(
                 sampler, jax.random.key(1000 + seed), num_lanes=args.lanes, num_steps=args.steps,
-                observables={"modes": one_hot}, progress=False, max_draws=0,
+                observables={"modes": one_hot}, progress=False, save=restore.SaveDraws(0),
             )
             errors[name].append(np.sqrt(np.mean((result.estimate("modes").value - truth) ** 2)))
     r, m = np.asarray(errors["restore"]), np.asarray(errors["mh"])

@@ -46,7 +46,7 @@ def logdensity(x):
 
 def brownian_row(bound: float, lanes: int, steps: int, repeats: int) -> dict:
     process = restore.Restore(logdensity, BrownianMotion(), Gaussian(jnp.zeros(2), jnp.eye(2)), log_rate=2.07, bound=bound)
-    kwargs = dict(num_lanes=lanes, num_steps=steps, progress=False, max_draws=0, num_chunks=1, finish_tours=False)
+    kwargs = dict(num_lanes=lanes, num_steps=steps, progress=False, save=restore.SaveDraws(0), num_chunks=1, finish_tours=False)
     import warnings
 
     with warnings.catch_warnings():

@@ -26,7 +26,7 @@ Then a lanes sweep (set-up 1 at 512, 8,192 and 65,536 lanes, the same number of
 lane-steps each: 512 x 12,800, 8,192 x 800, 65,536 x 100), which shows any cost that grows
 with the lanes (host work between chunks, say): BlackJAX RMH, the bare step,
 `restore.sample` for the budget's steps alone (`finish_tours=False`) and with its open
-tours finished after the budget (`num_chunks=1, max_draws=0`, as the ratios of set-up 1),
+tours finished after the budget (`num_chunks=1, save=restore.SaveDraws(0)`, as the ratios of set-up 1),
 and the steps the finishing took. `--sweep-only` runs the sweep alone, `--no-sweep` skips it.
 
 `--sweep-lanes` and `--lane-steps` change the sweep's sizes (a GPU needs more lanes and
@@ -123,7 +123,7 @@ def _compiled(run, argument) -> Contender:
 def restore_sample(sampler, lanes: int, steps: int) -> Contender:
     """`restore.sample`'s run time (`wall_time`), and its first call's extra seconds: the whole
     first call minus the whole second one (tracing, compilation, the pilot)."""
-    kwargs = dict(num_lanes=lanes, num_steps=steps, progress=False, max_draws=0, num_chunks=1)
+    kwargs = dict(num_lanes=lanes, num_steps=steps, progress=False, save=restore.SaveDraws(0), num_chunks=1)
     calls = []
     for i in range(2):
         start = time.perf_counter()
@@ -135,7 +135,7 @@ def restore_sample(sampler, lanes: int, steps: int) -> Contender:
 def restore_sample_budget(sampler, lanes: int, steps: int) -> Contender:
     """`restore.sample` for the budget's steps alone: the open tours are dropped, not finished
     (the estimates of such a run lean towards short tours; this measures the loop)."""
-    kwargs = dict(num_lanes=lanes, num_steps=steps, progress=False, max_draws=0, num_chunks=1, finish_tours=False)
+    kwargs = dict(num_lanes=lanes, num_steps=steps, progress=False, save=restore.SaveDraws(0), num_chunks=1, finish_tours=False)
     restore.sample(sampler, jax.random.key(0), **kwargs)
     return Contender(lambda i: restore.sample(sampler, jax.random.key(i), **kwargs).wall_time, math.nan)
 
@@ -197,7 +197,7 @@ def lanes_sweep(dim: int, rounds: int, lane_steps: int = 6_553_600, lanes_list: 
             for label, contender in contenders.items():
                 times[label].append(contender.once(r + 2))
         base = np.asarray(times["BlackJAX RMH"])
-        finishing = restore.sample(jump, jax.random.key(1), num_lanes=lanes, num_steps=steps, progress=False, max_draws=0, num_chunks=1)
+        finishing = restore.sample(jump, jax.random.key(1), num_lanes=lanes, num_steps=steps, progress=False, save=restore.SaveDraws(0), num_chunks=1)
         for label in contenders:
             seconds = np.asarray(times[label])
             ratio = float(np.median(base / seconds))

@@ -84,7 +84,7 @@ def run(seeds: int, lanes: int, steps: int) -> None:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 result = restore.sample(
-                    sampler, jax.random.key(seed), num_lanes=lanes, num_steps=steps, observables=observables, progress=False, max_draws=0
+                    sampler, jax.random.key(seed), num_lanes=lanes, num_steps=steps, observables=observables, progress=False, save=restore.SaveDraws(0)
                 )
                 for label, (obs, index, truth) in truths.items():
                     est = result.normalising_constant() if obs is None else result.estimate(obs)

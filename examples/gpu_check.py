@@ -100,7 +100,7 @@ def check_sampler(lanes: int, steps: int) -> None:
     scale = 0.75
     sampler = restore.JumpRestore(target.logdensity, restore.local.RandomWalk(scale), nu, tour_length=10.0)
     modes = lambda x: jax.nn.one_hot(target.assign_mode(x), 3)  # noqa: E731
-    kwargs = dict(num_lanes=lanes, observables={"modes": modes}, progress=False, max_draws=0, num_chunks=1)
+    kwargs = dict(num_lanes=lanes, observables={"modes": modes}, progress=False, save=restore.SaveDraws(0), num_chunks=1)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         start = time.perf_counter()

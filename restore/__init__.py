@@ -29,6 +29,8 @@ from ._jump_restore import JumpRestoreState as JumpRestoreState
 from ._merge import merge_results as merge_results
 from ._mixture_mh import MixtureMH as MixtureMH
 from ._mixture_mh import MixtureMHState as MixtureMHState
+from ._options import Checkpoint as Checkpoint
+from ._options import SaveDraws as SaveDraws
 from ._pareto import K_HAT_LIMIT as K_HAT_LIMIT
 from ._point import Point as Point
 from ._rate import PilotEstimate as PilotEstimate

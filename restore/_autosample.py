@@ -31,6 +31,7 @@ be trusted. It never raises because the target has no mode or too many of them.
 from __future__ import annotations
 
 import math
+import os
 import time
 import warnings
 import weakref
@@ -45,12 +46,13 @@ from jaxtyping import Array, ArrayLike, PRNGKeyArray
 from ._compile import jit
 from ._coordinates import check_coordinates
 from ._jump_restore import JumpRestore
+from ._options import DEFAULT_DRAWS, Checkpoint, SaveDraws
 from ._pareto import K_HAT_LIMIT
 from ._preconditioning import guide_components, typical_scale_tril
 from ._progress import console_note
 from ._random import distribution_draws
 from ._result import SampleResult
-from ._sample import _draw_capacity, _thinning, sample
+from ._sample import sample
 from ._seeding import seed_draws
 from ._seeding_modes import laplace_candidates
 from ._validation import check_integer, check_key, check_logdensity
@@ -362,7 +364,8 @@ def autosample(
     stage_steps: int | None = None,
     seed_steps: int = 200,
     progress: bool = True,
-    **sample_kwargs,
+    save: SaveDraws = DEFAULT_DRAWS,
+    checkpoint: Checkpoint | str | os.PathLike | None = None,
 ) -> AutoResult:
     """Sample `logdensity` with jump Restore, its regeneration built and improved in stages.
 
@@ -402,7 +405,9 @@ def autosample(
         stage_steps: steps per lane of each stage (default `max(100, num_steps // 4)`).
         seed_steps: steps of each seeding chain.
         progress: show progress bars and one line per stage.
-        sample_kwargs: passed on to the final `restore.sample` (e.g. `max_draws`, `checkpoint`).
+        save: the draws the final run keeps (`restore.SaveDraws`); the stages keep as many
+            per lane, thinned over their shorter runs, to fit the next regeneration to.
+        checkpoint: the final run's checkpoint (`restore.Checkpoint` or a file name).
 
     Returns:
         An `AutoResult`.
@@ -461,13 +466,13 @@ def autosample(
 
     # Stages store draws in a buffer of the final run's shape, and stream the same observables,
     # so the final run reuses the compiled programs of the stage whose regeneration it takes.
-    final_draws = sample_kwargs.get("max_draws", 100_000)
-    _, stored = _thinning(num_steps, num_lanes, final_draws, sample_kwargs.get("thin"))
-    if stored > 0:
-        stage_draws, stage_thin = stored * num_lanes, max(1, stage_steps // stored)
-        draw_rows = sample_kwargs.get("draw_rows") or _draw_capacity(stored, num_lanes, final_draws)
+    if not isinstance(save, SaveDraws):
+        raise TypeError(f"save must be a restore.SaveDraws, got {type(save).__name__}")
+    final = save.plan(num_steps, num_lanes)
+    if final.stored > 0:
+        stage_save = SaveDraws(final.stored * num_lanes, max(1, stage_steps // final.stored), final.rows)
     else:  # the final run stores no draws; the stages need some to fit to
-        stage_draws, stage_thin, draw_rows = min(100_000, num_lanes * 64), None, None
+        stage_save = SaveDraws(min(100_000, num_lanes * 64))
 
     best = None  # (report, fit, regeneration, log Z) of the stage the final run takes (see `preferred`)
     log_z = None
@@ -480,8 +485,7 @@ def autosample(
             warnings.simplefilter("ignore")
             result = sample(
                 sampler, stage_keys[stage - 1], num_lanes=num_lanes, num_steps=stage_steps,
-                observables=observables, progress=progress, max_draws=stage_draws, thin=stage_thin,
-                draw_rows=draw_rows,
+                observables=observables, progress=progress, save=stage_save,
             )  # fmt: skip
         pilot = sampler.pilot_size if piloted else 0
         report = _stage_report(stage, "adapt", choice.fit, result, pilot, time.perf_counter() - clock)
@@ -506,11 +510,12 @@ def autosample(
     report, fit, u, log_z = best  # type: ignore[misc]
     clock = time.perf_counter()
     sampler, piloted = sampler_for(u, log_z)
-    sample_kwargs.setdefault("progress", progress)
     with advising(AUTOSAMPLE_ADVICE):
-        result = sample(sampler, key_final, num_lanes=num_lanes, num_steps=num_steps, observables=observables, **sample_kwargs)
-    final = _stage_report(len(stages), "final", fit, result, sampler.pilot_size if piloted else 0, time.perf_counter() - clock)
-    stages.append(final)
+        result = sample(
+            sampler, key_final, num_lanes=num_lanes, num_steps=num_steps, observables=observables, progress=progress,
+            save=save, checkpoint=checkpoint,
+        )  # fmt: skip
+    stages.append(_stage_report(len(stages), "final", fit, result, sampler.pilot_size if piloted else 0, time.perf_counter() - clock))
     total = sum(s.evaluations for s in stages)
     return AutoResult(result, sampler, u, stages, total, time.perf_counter() - started, report.healthy)
 

@@ -479,7 +479,7 @@ class SampleResult:
             + (" (interrupted)" if self.interrupted else ""),
             f"  acceptance rate {self.acceptance_rate:.3f}, invalid evaluations {self.num_invalid}",
             f"  stored draws: {self.draws.shape[0]} per lane, one every {self.thin} steps"
-            + (" (thinned to the draws budget: raise max_draws or set thin to keep more)" if self.draws_note else ""),
+            + (" (thinned to the draws budget: raise SaveDraws(max_draws=...) or set SaveDraws(thin=...) to keep more)" if self.draws_note else ""),
         ]
         if self.has_tours and self.log_rate is not None:
             stats = self.tour_statistics()

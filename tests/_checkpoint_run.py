@@ -35,11 +35,9 @@ def run(checkpoint=None, **kwargs):
         jax.random.key(7),
         num_lanes=NUM_LANES,
         num_steps=NUM_STEPS,
-        max_draws=4_000,
+        save=restore.SaveDraws(4_000),
         progress=False,
-        checkpoint=checkpoint,
-        checkpoint_steps=CHECKPOINT_STEPS,
-        checkpoint_seconds=None,
+        checkpoint=None if checkpoint is None else restore.Checkpoint(checkpoint, every_steps=CHECKPOINT_STEPS, every_seconds=None),
         **kwargs,
     )
 

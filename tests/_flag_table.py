@@ -73,7 +73,7 @@ def replications(setting: Setting, key) -> tuple[np.ndarray, np.ndarray]:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         result = restore.sample(
-            sampler, key, num_lanes=REPLICATIONS * LANES, num_steps=STEPS, max_draws=0, progress=False,
+            sampler, key, num_lanes=REPLICATIONS * LANES, num_steps=STEPS, save=restore.SaveDraws(0), progress=False,
             observables={"tail": lambda x: (x[0] > 1.0).astype(x.dtype)[None]},
         )  # fmt: skip
         z, reliable = [], []

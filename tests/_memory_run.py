@@ -29,7 +29,7 @@ def main(num_steps: int) -> dict:
         log_rate=0.0,
     )
     run = lambda n: restore.sample(  # noqa: E731
-        sampler, jax.random.key(0), num_lanes=LANES, num_steps=n, max_draws=0, progress=False
+        sampler, jax.random.key(0), num_lanes=LANES, num_steps=n, save=restore.SaveDraws(0), progress=False
     )
     short = run(10_000)
     before = peak_mib()

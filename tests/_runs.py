@@ -22,9 +22,9 @@ def record(arrays: dict, name: str, result) -> None:
 def ctrl_c_after(chunks: int):
     """Inside, `restore.sample` is interrupted (`KeyboardInterrupt`) when it dispatches chunk
     `chunks + 1` (the chunk in flight, the last, is waited for and committed)."""
-    import restore._sample as sample_module
+    import restore._run as run_module
 
-    advance, calls = sample_module.advance, []
+    advance, calls = run_module.advance, []
 
     def interrupting(*args, **kwargs):
         calls.append(1)
@@ -32,8 +32,8 @@ def ctrl_c_after(chunks: int):
             raise KeyboardInterrupt
         return advance(*args, **kwargs)
 
-    sample_module.advance = interrupting
+    run_module.advance = interrupting
     try:
         yield
     finally:
-        sample_module.advance = advance
+        run_module.advance = advance

@@ -60,7 +60,7 @@ class LaplaceRestoreRunner(EvidenceRunner):
         self.lanes, self.steps, self.num_starts, self.tour_length, self.name = int(lanes), int(steps), int(num_starts), float(tour_length), name
 
     def run(self, problem, key: PRNGKeyArray) -> EvidenceOutput:
-        from .. import JumpRestore, regeneration, sample
+        from .. import JumpRestore, SaveDraws, regeneration, sample
         from ..local import RandomWalk
 
         k_starts, k_run = jax.random.split(key)
@@ -72,7 +72,7 @@ class LaplaceRestoreRunner(EvidenceRunner):
             warnings.simplefilter("always")
             nu = regeneration.laplace_mixture(problem.logdensity, starts, tails="student_t", df=5.0)
             sampler = JumpRestore(problem.logdensity, RandomWalk(2.38 / math.sqrt(problem.dim)), nu, tour_length=self.tour_length)
-            result = sample(sampler, k_run, num_lanes=self.lanes, num_steps=self.steps, observables=problem.observables, max_draws=self.lanes, progress=False)
+            result = sample(sampler, k_run, num_lanes=self.lanes, num_steps=self.steps, observables=problem.observables, save=SaveDraws(self.lanes), progress=False)
         lanes = self.lanes * (1 + result.num_steps + result.finishing_steps)  # each lane's start, then one per step
         out = read_result(result, problem, counted.count + result.pilot.num_draws + lanes, clock, caught)
         return out._replace(notes="; ".join(n for n in (f"{len(nu.components)} modes", out.notes) if n))

@@ -11,6 +11,7 @@ from jaxtyping import PRNGKeyArray
 
 from .._jump_restore import JumpRestore
 from .._mixture_mh import MixtureMH
+from .._options import SaveDraws
 from .._sample import sample
 from ..local import HMC, MALA, RandomWalk
 from ._runner import Budget, Runner, RunOutput
@@ -96,7 +97,7 @@ class _SampleRunner(Runner):
             warnings.simplefilter("always")
             result = sample(
                 self._prepare(sampler, k_pilot), k_run, num_lanes=self.lanes, num_steps=steps, observables=problem.observables,
-                max_draws=self.lanes * self.draws_per_lane, thin=thin, progress=False,
+                save=SaveDraws(self.lanes * self.draws_per_lane, thin=thin), progress=False,
             )
         evaluations = self.lanes * per_step * (result.num_steps + result.finishing_steps) + self._extra_evaluations(result)
         draws = result.draws[1:]

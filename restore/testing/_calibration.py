@@ -10,6 +10,7 @@ import numpy as np
 from jaxtyping import Array, PRNGKeyArray
 from scipy import stats
 
+from .._options import SaveDraws
 from .._sample import sample
 from ._stationarity import CheckReport
 
@@ -49,7 +50,7 @@ def calibration_test(
     """
     observables = {name: fn for name, (fn, _) in truths.items()}
     sample_kwargs.setdefault("progress", False)
-    sample_kwargs.setdefault("max_draws", 0)
+    sample_kwargs.setdefault("save", SaveDraws(0))
     lanes = num_replications * lanes_per_replication
     result = sample(sampler, key, num_lanes=lanes, num_steps=num_steps, observables=observables, **sample_kwargs)
     tolerance = coverage_tolerance if coverage_tolerance is not None else 3.0 * math.sqrt(0.95 * 0.05 / num_replications)

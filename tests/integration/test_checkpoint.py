@@ -107,9 +107,9 @@ def test_sigkill_then_sigint_then_resume_is_bit_identical(reference, tmp_path):
 def test_ctrl_c_saves_the_partial_run(reference, tmp_path, monkeypatch):
     """KeyboardInterrupt between chunks: the partial result is returned and saved; resuming completes it.
     The interrupt comes as the fifth chunk is dispatched, while the fourth runs, which is waited for."""
-    import restore._sample as sample_module
+    import restore._run as run_module
 
-    original, calls = sample_module.advance, []
+    original, calls = run_module.advance, []
 
     def interrupted_advance(*args, **kwargs):
         calls.append(1)
@@ -117,12 +117,12 @@ def test_ctrl_c_saves_the_partial_run(reference, tmp_path, monkeypatch):
             raise KeyboardInterrupt
         return original(*args, **kwargs)
 
-    monkeypatch.setattr(sample_module, "advance", interrupted_advance)
+    monkeypatch.setattr(run_module, "advance", interrupted_advance)
     with pytest.warns(UserWarning, match="interrupted after 640 of 8000 steps"):
         partial = child.run(tmp_path / "run.ckpt")
     assert partial.interrupted and partial.num_steps == 640
     assert read_header(tmp_path / "run.ckpt")["done"] == 640
-    monkeypatch.setattr(sample_module, "advance", original)
+    monkeypatch.setattr(run_module, "advance", original)
     assert_identical(child.arrays(child.run(tmp_path / "run.ckpt")), reference)
 
 
@@ -137,7 +137,7 @@ def test_checkpoint_of_another_run_is_refused(tmp_path):
         restore.sample(sampler, jax.random.key(0), **{**kwargs, "num_lanes": 8})
     with pytest.raises(CheckpointError, match="observables"):
         restore.sample(sampler, jax.random.key(0), observables={"y": lambda x: x[0]}, **kwargs)
-    fresh = restore.sample(sampler, jax.random.key(1), resume=False, **kwargs)  # overwrites it
+    fresh = restore.sample(sampler, jax.random.key(1), **{**kwargs, "checkpoint": restore.Checkpoint(checkpoint, resume=False)})  # overwrites it
     assert read_header(checkpoint)["key"] == np.asarray(jax.random.key_data(jax.random.key(1))).tolist()
     assert fresh.num_steps == 20
 
@@ -154,11 +154,12 @@ def test_damaged_checkpoint_gives_a_clear_error(tmp_path, damage):
 
 
 def test_bad_checkpoint_settings_are_rejected():
-    kwargs = dict(num_lanes=4, num_steps=20, progress=False, checkpoint="unused.ckpt")
-    with pytest.raises(ValueError, match="checkpoint_steps must be a positive integer"):
-        restore.sample(child.sampler(), jax.random.key(0), checkpoint_steps=0, **kwargs)
-    with pytest.raises(ValueError, match="checkpoint_seconds must be a positive number"):
-        restore.sample(child.sampler(), jax.random.key(0), checkpoint_seconds=-1.0, **kwargs)
+    with pytest.raises(ValueError, match="every_steps must be a positive integer"):
+        restore.Checkpoint("unused.ckpt", every_steps=0)
+    with pytest.raises(ValueError, match="every_seconds must be a positive number"):
+        restore.Checkpoint("unused.ckpt", every_seconds=-1.0)
+    with pytest.raises(TypeError, match="checkpoint must be a restore.Checkpoint or a file name"):
+        restore.sample(child.sampler(), jax.random.key(0), num_lanes=4, num_steps=20, progress=False, checkpoint=3)
     assert not Path("unused.ckpt").exists()
 
 

@@ -38,7 +38,7 @@ def test_stored_draws_are_thinned_to_the_budget_with_a_message(caplog):
         log_rate=0.0,
     )
     with caplog.at_level(logging.INFO, logger="restore"):
-        result = restore.sample(sampler, jax.random.key(0), num_lanes=2, num_steps=20_000, max_draws=1_000, progress=False)
+        result = restore.sample(sampler, jax.random.key(0), num_lanes=2, num_steps=20_000, save=restore.SaveDraws(1_000), progress=False)
     assert result.draws.shape == (500, 2, 1) and result.thin == 40
     note = "max_draws=1,000: 2 lanes x 20,000 steps make 40,000 states, so one state in every 40 steps of each lane is stored"
     assert note in result.draws_note and note in caplog.text
@@ -49,5 +49,5 @@ def test_stored_draws_are_thinned_to_the_budget_with_a_message(caplog):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         result.estimate_draws(lambda x: x[..., 0])
-    unthinned = restore.sample(sampler, jax.random.key(0), num_lanes=2, num_steps=100, max_draws=1_000, progress=False)
+    unthinned = restore.sample(sampler, jax.random.key(0), num_lanes=2, num_steps=100, save=restore.SaveDraws(1_000), progress=False)
     assert unthinned.thin == 1 and unthinned.draws_note is None

@@ -133,11 +133,11 @@ def test_processes_that_see_different_checkpoints_are_refused(tmp_path, monkeypa
     import jax.numpy as jnp
 
     import restore
-    import restore._sample as sample_module
+    import restore._run as run_module
     from restore._checkpoint import CheckpointError
 
     # Process 0 finds the checkpoint of step 8, process 1 none (e.g. a folder that is not shared).
-    monkeypatch.setattr(sample_module, "from_every_process", lambda values: np.asarray([values, [0, -1, -1]]))
+    monkeypatch.setattr(run_module, "from_every_process", lambda values: np.asarray([values, [0, -1, -1]]))
     checkpoint = tmp_path / "run.ckpt"
     checkpoint.write_bytes(b"")
     sampler = restore.JumpRestore(

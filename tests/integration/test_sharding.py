@@ -34,7 +34,7 @@ import json, sys, warnings
 import jax, jax.numpy as jnp, numpy as np
 jax.config.update("jax_enable_x64", True)
 import restore
-import restore._sample as sample_module
+import restore._run as run_module
 from restore.dynamics import BrownianMotion
 from restore.local import RandomWalk
 from restore.regeneration import Gaussian
@@ -45,12 +45,12 @@ assert len(jax.devices()) == 4, jax.devices()
 report = {}
 
 # Record how the per-lane sums are laid out when the run is gathered to the host (once, at the end).
-gather = sample_module.to_host
+gather = run_module.to_host
 def spy(tree):
     sums = tree.sums if hasattr(tree, "sums") else tree[0]
     report.setdefault("shards", []).append([s.data.shape[0] for s in sums.sum_t.addressable_shards])
     return gather(tree)
-sample_module.to_host = spy
+run_module.to_host = spy
 
 if mode == "sharded":
     try:

@@ -72,7 +72,7 @@ def test_brownian_restore_reproduces_the_published_example():
     """`pi = N(0, S)` unnormalised, `nu = N(0, I)`, `log c_tilde = 2.07`: moments, tour length and `Z`."""
     process = restore.Restore(gaussian_logdensity, BrownianMotion(), Gaussian(jnp.zeros(2), jnp.eye(2)), log_rate=2.07, bound=100.0)
     with pytest.warns(RuntimeWarning, match="exceeded the thinning bound"):
-        result = restore.sample(process, jax.random.key(0), num_lanes=1000, num_steps=2000, progress=False, max_draws=0)
+        result = restore.sample(process, jax.random.key(0), num_lanes=1000, num_steps=2000, progress=False, save=restore.SaveDraws(0))
     z = result.estimate("x**2").z_score(np.array([1.2, 0.8]))
     assert np.all(np.abs(z) < 4), z
     z_log = 2 * np.pi * np.sqrt(0.8)
@@ -91,7 +91,7 @@ def test_brownian_restore_in_one_dimension_has_unit_mean_tour():
     process = restore.Restore(
         lambda x: -0.5 * jnp.sum(x**2), BrownianMotion(), Gaussian(jnp.zeros(1), 4.0), log_rate=0.5 * np.log(2 * np.pi), bound=40.0
     )
-    result = restore.sample(process, jax.random.key(1), num_lanes=1000, num_steps=1000, progress=False, max_draws=0)
+    result = restore.sample(process, jax.random.key(1), num_lanes=1000, num_steps=1000, progress=False, save=restore.SaveDraws(0))
     stats = result.tour_statistics()
     assert abs(stats.mean_duration - 1.0) < 4 * stats.mean_duration_se
     assert result.num_negative_rate == 0
@@ -210,7 +210,7 @@ def test_dependent_tours_give_lane_based_errors_that_are_calibrated():
     target, kernel = exit_dependent_setup()
     process = restore.Restore(target.logdensity, Jump(RandomWalk(0.8)), kernel, tour_length=2.0)
     result = restore.sample(
-        process, jax.random.key(5), num_lanes=REPLICATIONS * LANES_PER_REPLICATION, num_steps=1500, progress=False, max_draws=0,
+        process, jax.random.key(5), num_lanes=REPLICATIONS * LANES_PER_REPLICATION, num_steps=1500, progress=False, save=restore.SaveDraws(0),
         observables={"x": lambda x: x, "mode": lambda x: (target.assign_mode(x) == 1).astype(x.dtype)},
     )
     with pytest.raises(ValueError, match="use method='lanes'"):
@@ -343,7 +343,7 @@ def test_too_small_a_constant_is_reported():
     """Brownian Restore with `c_tilde` far below the safe value: negative rates are counted and warned about."""
     process = restore.Restore(gaussian_logdensity, BrownianMotion(), Gaussian(jnp.zeros(2), jnp.eye(2)), log_rate=0.0, bound=100.0)
     with pytest.warns(RuntimeWarning, match="negative"):
-        result = restore.sample(process, jax.random.key(0), num_lanes=16, num_steps=200, progress=False, max_draws=0)
+        result = restore.sample(process, jax.random.key(0), num_lanes=16, num_steps=200, progress=False, save=restore.SaveDraws(0))
     assert result.num_negative_rate > 0
 
 
@@ -355,7 +355,7 @@ def test_z_from_tours_with_a_phase_rule_that_does_not_cycle():
         log_rate=(0.0, 2.0), phase_rule=lambda i: (i % 4 == 0).astype(jnp.int32),
     )  # fmt: skip
     assert process.phase_of_tour(jnp.arange(6)).tolist() == [0, 0, 0, 0, 1, 0]
-    result = restore.sample(process, jax.random.key(0), num_lanes=64, num_steps=1000, progress=False, max_draws=0)
+    result = restore.sample(process, jax.random.key(0), num_lanes=64, num_steps=1000, progress=False, save=restore.SaveDraws(0))
     log_z = result.normalising_constant("tours")
     assert abs(float(log_z.z_score(np.log(2 * np.pi)))) < 4, log_z
     stats = result.tour_statistics()

@@ -55,7 +55,7 @@ def run(schools):
         warnings.simplefilter("ignore")
         return restore.sample(
             sampler, jax.random.key(1), num_lanes=128, num_steps=400, observables=schools.observables("mu", "tau"),
-            progress=False, max_draws=128 * 50,
+            progress=False, save=restore.SaveDraws(128 * 50),
         )  # fmt: skip
 
 

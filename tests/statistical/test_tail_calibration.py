@@ -43,7 +43,7 @@ def test_reliable_error_bars_cover_the_truth_under_a_poor_regeneration():
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         result = restore.sample(
-            sampler, jax.random.key(0), num_lanes=replications * lanes, num_steps=1000, max_draws=0, progress=False,
+            sampler, jax.random.key(0), num_lanes=replications * lanes, num_steps=1000, save=restore.SaveDraws(0), progress=False,
             observables=observables,
         )  # fmt: skip
     truths = {"x": 0.0, "tail": float(stats.t.sf(1.0, df))}
@@ -71,7 +71,7 @@ def _two_modes(regeneration):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         result = restore.sample(
-            sampler, jax.random.key(0), num_lanes=replications * lanes, num_steps=400, max_draws=0, progress=False,
+            sampler, jax.random.key(0), num_lanes=replications * lanes, num_steps=400, save=restore.SaveDraws(0), progress=False,
             observables={"right": lambda x: (x[0] > 0).astype(x.dtype)[None]},
         )  # fmt: skip
     return [

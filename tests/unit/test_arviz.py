@@ -25,7 +25,7 @@ def run():
     sampler = restore.JumpRestore(
         lambda x: -0.5 * jnp.sum(x**2), RandomWalk(1.0), Gaussian(jnp.zeros(2), 2.0), log_rate=0.0
     )
-    return restore.sample(sampler, jax.random.key(3), num_lanes=32, num_steps=600, progress=False, max_draws=32 * 200)
+    return restore.sample(sampler, jax.random.key(3), num_lanes=32, num_steps=600, progress=False, save=restore.SaveDraws(32 * 200))
 
 
 def _max(stat, name="x"):
@@ -75,7 +75,7 @@ def test_short_lanes_of_a_healthy_run_give_rhat_near_one():
         lambda x: -0.5 * jnp.sum(x**2), RandomWalk(1.0), Gaussian(jnp.zeros(2), 2.0), log_rate=0.0
     )
     short = restore.sample(
-        sampler, jax.random.key(3), num_lanes=256, num_steps=200, progress=False, max_draws=256 * 200
+        sampler, jax.random.key(3), num_lanes=256, num_steps=200, progress=False, save=restore.SaveDraws(256 * 200)
     )
     assert np.all(short.estimate("x").reliable)
     assert _max(az.rhat(short.to_arviz(chains=256))) > 1.01

@@ -48,7 +48,7 @@ def run():
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         return restore.sample(
-            sampler, jax.random.key(0), num_lanes=32, num_steps=500, progress=False, num_chunks=10, max_draws=32 * 100,
+            sampler, jax.random.key(0), num_lanes=32, num_steps=500, progress=False, num_chunks=10, save=restore.SaveDraws(32 * 100),
             observables={"x": lambda x: x, "sides": sides},
         )  # fmt: skip
 
@@ -191,7 +191,7 @@ def test_numpyro_sites_by_name():
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         result = restore.sample(
-            sampler, jax.random.key(1), num_lanes=16, num_steps=200, progress=False, max_draws=16 * 50,
+            sampler, jax.random.key(1), num_lanes=16, num_steps=200, progress=False, save=restore.SaveDraws(16 * 50),
             observables=target.observables("mu", "sigma"),
         )  # fmt: skip
     sigma = plot.running_estimate_values(result, "sigma")

@@ -46,7 +46,7 @@ def test_same_key_and_arguments_give_identical_results():
 
 @pytest.mark.slow
 def test_a_run_split_over_lanes_and_merged_is_the_same_run():
-    kwargs = dict(num_steps=300, progress=False, thin=3)
+    kwargs = dict(num_steps=300, progress=False, save=restore.SaveDraws(thin=3))
     whole = restore.sample(sampler(), jax.random.key(5), num_lanes=12, **kwargs)
     parts = [restore.sample(sampler(), jax.random.key(5), num_lanes=n, first_lane=f, **kwargs) for f, n in ((0, 4), (4, 8))]
     merged = restore.merge_results(parts)
@@ -66,7 +66,7 @@ def test_merge_refuses_parts_of_different_runs():
     with pytest.raises(ValueError, match="num_steps=50 but result 0 has 100"):
         restore.merge_results([a, restore.sample(sampler(), jax.random.key(0), **{**kwargs, "num_steps": 50})])
     with pytest.raises(ValueError, match="thin=10 but result 0 has 1"):
-        restore.merge_results([a, restore.sample(sampler(), jax.random.key(0), **{**kwargs, "max_draws": 40})])
+        restore.merge_results([a, restore.sample(sampler(), jax.random.key(0), **{**kwargs, "save": restore.SaveDraws(40)})])
     with pytest.raises(ValueError, match="non-empty sequence"):
         restore.merge_results([])
     with pytest.raises(ValueError, match="first_lane must be a non-negative integer"):
@@ -104,7 +104,7 @@ def test_float32_sums_keep_their_precision_over_long_runs():
     num_steps = 100_000
 
     result = restore.sample(
-        box_sampler, jax.random.key(1), num_lanes=2, num_steps=num_steps, max_draws=0, progress=False, num_chunks=50
+        box_sampler, jax.random.key(1), num_lanes=2, num_steps=num_steps, save=restore.SaveDraws(0), progress=False, num_chunks=50
     )
     assert result.sums.all_t.dtype == np.float64
     assert np.all(np.abs(result.sums.all_t / num_steps * 1.3 - 1.0) < 1e-4)

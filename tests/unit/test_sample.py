@@ -17,7 +17,7 @@ def std_normal(x):
 @pytest.fixture(scope="module")
 def run():
     sampler = restore.JumpRestore(std_normal, RandomWalk(1.0), Gaussian(jnp.zeros(2), 2.0), tour_length=2.0)
-    return restore.sample(sampler, jax.random.key(0), num_lanes=128, num_steps=800, progress=False, max_draws=20_000)
+    return restore.sample(sampler, jax.random.key(0), num_lanes=128, num_steps=800, progress=False, save=restore.SaveDraws(20_000))
 
 
 def test_estimates_against_the_truth(run):
@@ -104,7 +104,7 @@ def test_draw_rows_shares_one_program_between_runs_of_other_lengths_and_changes_
     plain = run(40)
     jax.monitoring.register_event_duration_secs_listener(listen)
     try:
-        short, long = run(40, draw_rows=128), run(120, draw_rows=128)
+        short, long = run(40, save=restore.SaveDraws(rows=128)), run(120, save=restore.SaveDraws(rows=128))
     finally:
         jax.monitoring.unregister_event_duration_listener(listen)
     assert traced.count("advance") == 1  # the 40-step and the 120-step runs share the loop program
@@ -112,7 +112,7 @@ def test_draw_rows_shares_one_program_between_runs_of_other_lengths_and_changes_
     np.testing.assert_array_equal(short.draws, plain.draws)
     np.testing.assert_array_equal(short.estimate("x").value, plain.estimate("x").value)
     with pytest.raises(ValueError, match="fewer than the 120 draws"):
-        run(120, draw_rows=64)
+        run(120, save=restore.SaveDraws(rows=64))
 
 
 def test_calibrated_to_sets_the_rate_from_a_known_log_z_and_keeps_the_tour_length():

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import restore
-import restore._sample as sample_module
+import restore._run as run_module
 from restore._threefry import UNROLLED_THREEFRY, loggamma, threefry2x32, unrolled_keys
 from restore.local import RandomWalk
 from restore.regeneration import Gaussian, StudentT
@@ -86,7 +86,7 @@ def test_a_run_is_the_same_with_jax_keys(monkeypatch, regeneration):
 
     kwargs = dict(num_lanes=16, num_steps=120, progress=False, num_chunks=3)
     fast = restore.sample(sampler(), jax.random.key(3), **kwargs)
-    monkeypatch.setattr(sample_module, "unrolled_keys", lambda keys: keys)
+    monkeypatch.setattr(run_module, "unrolled_keys", lambda keys: keys)
     plain = restore.sample(sampler(), jax.random.key(3), **kwargs)
     np.testing.assert_array_equal(fast.draws, plain.draws)
     for name in ("sum_t", "num_tours", "num_accepted"):

@@ -148,7 +148,7 @@ def test_thinned_draws_are_noted_once_at_the_users_line_when_used():
     sampler = restore.JumpRestore(std_normal, RandomWalk(1.0), Gaussian(jnp.zeros(2), 2.0), log_rate=0.0)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        result = restore.sample(sampler, jax.random.key(0), num_lanes=8, num_steps=400, max_draws=800, progress=False)
+        result = restore.sample(sampler, jax.random.key(0), num_lanes=8, num_steps=400, save=restore.SaveDraws(800), progress=False)
         assert not caught and result.thin == 4
         result.estimate_draws(lambda x: x[..., 0])
         result.to_arviz()
