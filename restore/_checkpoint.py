@@ -83,7 +83,7 @@ def _read(path: str | os.PathLike) -> tuple[dict[str, Any], dict[str, np.ndarray
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, UnicodeDecodeError) as error:
         raise CheckpointError(
             f"cannot read checkpoint {path}: {error}. It is damaged or not a restore checkpoint; "
-            "delete it (or pass resume=False) to start the run afresh"
+            "delete it (or pass Checkpoint(path, resume=False)) to start the run afresh"
         ) from error
     if not isinstance(header, dict) or header.get("format") != FORMAT:
         raise CheckpointError(f"{path} is not a {FORMAT} checkpoint (format {header.get('format')!r})")
@@ -115,7 +115,7 @@ def load_checkpoint(path: str | os.PathLike, like, expected: dict[str, Any]) -> 
     if differ:
         raise CheckpointError(
             f"checkpoint {path} belongs to another run ({'; '.join(differ)}). Resume with the same key and "
-            "arguments, or give another checkpoint path (or resume=False to overwrite it)"
+            "arguments, or give another checkpoint path (or Checkpoint(path, resume=False) to overwrite it)"
         )
     leaves, treedef = jax.tree.flatten(like)
     if len(arrays) != len(leaves):

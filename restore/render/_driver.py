@@ -18,8 +18,9 @@ import numpy as np
 from .._checkpoint import key_fingerprint, load_checkpoint, save_checkpoint
 from .._compile import compiler_options
 from .._driver import Budget, Meter, drive
+from .._options import Checkpoint, as_checkpoint
 from .._threefry import unrolled_keys
-from .._validation import check_interval, check_key
+from .._validation import check_key
 from ._pss import check_target
 from ._renderer import (
     AbstractRenderer,
@@ -106,9 +107,7 @@ def render(
     chunk: int | None = None,
     progress: bool = True,
     on_update: Callable[[np.ndarray, RenderStatistics], None] | None = None,
-    checkpoint: str | os.PathLike | None = None,
-    checkpoint_seconds: float | None = 60.0,
-    resume: bool = True,
+    checkpoint: Checkpoint | str | os.PathLike | None = None,
 ) -> RenderResult:
     """Render `target` with `renderer` until the time or evaluation budget is spent.
 
@@ -151,18 +150,17 @@ def render(
         on_update: called as `on_update(image, statistics)` after every chunk, with the image
             so far (`(H, W, 3)` float32) and the renderer's statistics record so far (its
             tail diagnostics, computed once at the end, are NaN).
-        checkpoint: a file to save the run to (renderer state, float64 host tallies,
-            step and chunk counts, time spent), atomically, every `checkpoint_seconds`,
-            at the end and on Ctrl-C. If it exists (and `resume`), the render continues
+        checkpoint: a `restore.Checkpoint` or a file name (saved every 60 s): where to save
+            the run (renderer state, float64 host tallies, step and chunk counts, time
+            spent), atomically, every `every_seconds` and/or at the first chunk end after
+            every `every_steps` steps, at the end and on Ctrl-C. If it exists (and
+            `resume`), the render continues
             from it. Chunk keys follow the chunk count, so with an `evaluations` budget
             and a fixed `chunk` an interrupted and resumed render is bit-identical to an
             uninterrupted one; under a time budget the chunk lengths follow the clock, so
             a resumed render is a valid continuation but not a bit-identical one. A
             checkpoint of another render (key, renderer, target, lanes, chunk, budget)
             is refused with a `CheckpointError`.
-        checkpoint_seconds: seconds between saves (checked between chunks); `None`
-            saves only at the end and on Ctrl-C.
-        resume: continue from an existing `checkpoint` (default); `False` overwrites it.
 
     Returns:
         A `RenderResult`.
@@ -176,7 +174,7 @@ def render(
     check_target(target, needs_gradient=renderer.uses_gradient)
     seconds, evaluations = _check_budget(seconds, evaluations)
     lanes = check_lanes(lanes)
-    checkpoint_seconds = check_interval(checkpoint_seconds)
+    checkpoint = as_checkpoint(checkpoint)
     if on_update is not None and not callable(on_update):
         raise TypeError("on_update must be callable as on_update(image, statistics)")
     init_cost, step_cost = renderer.init_cost(lanes), renderer.step_cost(lanes)
@@ -212,9 +210,9 @@ def render(
     }
     state, totals, steps, chunks, spent = None, None, 0, 0, 0.0
     finishing, finishing_evaluations, finished, finishing_seconds = 0, 0, False, 0.0
-    if checkpoint is not None and resume and os.path.exists(checkpoint):  # checked before any compilation
+    if checkpoint is not None and checkpoint.resume and os.path.exists(checkpoint.path):  # checked before any compilation
         tally_like = jax.tree.map(lambda x: np.zeros(x.shape, host_tally_dtype(x)), state_shape.tally)
-        (state, totals), header = load_checkpoint(checkpoint, (state_shape, tally_like), fingerprint)
+        (state, totals), header = load_checkpoint(checkpoint.path, (state_shape, tally_like), fingerprint)
         state = jax.tree.map(jnp.asarray, state)
         steps, chunks, spent = header["steps"], header["chunks"], header["seconds_spent"]
         finishing, finished = header.get("finishing_steps", 0), header.get("finished", False)
@@ -273,7 +271,7 @@ def render(
             finishing_evaluations=finishing_evaluations, finished=finished, finishing_seconds=finishing_seconds,
         )
         assert checkpoint is not None  # the driver saves only with a checkpoint
-        save_checkpoint(checkpoint, (state, totals), header)
+        save_checkpoint(checkpoint.path, (state, totals), header)
 
     outcome = drive(
         advance,
@@ -285,7 +283,8 @@ def render(
         report=report,
         on_chunk=update,
         save=save if checkpoint is not None else None,
-        save_every_seconds=checkpoint_seconds,
+        save_every_steps=None if checkpoint is None else checkpoint.every_steps,
+        save_every_seconds=None if checkpoint is None else checkpoint.every_seconds,
     )
     if outcome.interrupted and totals is None:
         raise KeyboardInterrupt  # nothing finished to keep

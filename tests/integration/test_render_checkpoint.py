@@ -4,6 +4,7 @@ import jax
 import numpy as np
 import pytest
 
+import restore
 from restore._checkpoint import CheckpointError, read_header
 from restore.render import ERPT, PSSMLT, MetropolisRestore, render
 from targets import AnalyticImage
@@ -58,10 +59,12 @@ def test_checkpoint_of_another_render_is_refused(tmp_path):
         render(TARGET, PSSMLT(), checkpoint=checkpoint, **BUDGET)
     with pytest.raises(CheckpointError, match="lanes: checkpoint has 128, this run has 64"):
         render(TARGET, MetropolisRestore(), checkpoint=checkpoint, **{**BUDGET, "lanes": 64})
-    fresh = render(TARGET, PSSMLT(), checkpoint=checkpoint, resume=False, **BUDGET)
+    fresh = render(TARGET, PSSMLT(), checkpoint=restore.Checkpoint(checkpoint, resume=False), **BUDGET)
     assert not fresh.interrupted and "PSSMLT" in read_header(checkpoint)["renderer"]
 
 
-def test_bad_checkpoint_interval_is_rejected():
-    with pytest.raises(ValueError, match="checkpoint_seconds must be a positive number"):
-        render(TARGET, MetropolisRestore(), checkpoint_seconds=0, **BUDGET)
+def test_bad_checkpoint_settings_are_rejected():
+    with pytest.raises(ValueError, match="every_seconds must be a positive number"):
+        restore.Checkpoint("render.ckpt", every_seconds=0)
+    with pytest.raises(TypeError, match="checkpoint must be a restore.Checkpoint or a file name"):
+        render(TARGET, MetropolisRestore(), checkpoint=0.5, **BUDGET)
