@@ -141,7 +141,7 @@ def check_render(resolution: int, seconds: float, lanes: int) -> None:
     print(f"render: Cornell box {resolution}x{resolution}, max depth 5, Mitsuba variant {mi.variant()}")
     print(f"  {target.paths_per_second():,.0f} paths/s traced in primary sample space (batches of 65,536)")
     result = rr.render(target, rr.MetropolisRestore(), key=jax.random.key(0), seconds=seconds,
-                       lanes=lanes, progress=False)
+                       num_lanes=lanes, progress=False)
     print(f"  {result.evaluations_per_second:,.0f} paths/s with Metropolis Restore ({result.evaluations:,} paths in "
           f"{result.seconds:.1f} s, +{result.compile_seconds:.1f} s to compile)")
     print(f"  {native_paths_per_second(target.scene, max_depth=5):,.0f} paths/s with Mitsuba's own path integrator")

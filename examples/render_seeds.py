@@ -50,7 +50,7 @@ def main() -> None:
             for seed in range(args.seeds):
                 start = time.perf_counter()
                 result = render(target, make(n_bootstrap=size), key=jax.random.key(1000 * seed + 11),
-                                seconds=args.seconds, lanes=args.lanes, progress=False)
+                                seconds=args.seconds, num_lanes=args.lanes, progress=False)
                 error = relative_mse(result.image, reference)
                 rows.append(dict(scene=args.scene, method=method, bootstrap=size, seed=seed, seconds=result.seconds,
                                  evaluations=result.evaluations, relative_mse=error))

@@ -59,7 +59,7 @@ def main() -> None:
             for r in range(args.realisations):
                 start = time.perf_counter()
                 result = render(target, make(method, setting, value), key=jax.random.key(1000 * r + 7),
-                                seconds=args.seconds, lanes=lanes, progress=False)
+                                seconds=args.seconds, num_lanes=lanes, progress=False)
                 error = relative_mse(result.image, reference)
                 rows.append(dict(scene=scene_name, method=method, setting=setting, value=value, lanes=lanes,
                                  realisation=r, seconds=result.seconds, evaluations=result.evaluations,

@@ -440,7 +440,7 @@ def _render(scene, method, seconds, evaluations, resolution, max_depth, lanes, s
     scene_seconds = time.perf_counter() - start
     result = run_render(
         target, renderer, key=jax.random.key(seed), seconds=seconds,
-        evaluations=evaluations, lanes=lanes, progress=progress, checkpoint=checkpoint,
+        evaluations=evaluations, num_lanes=lanes, progress=progress, checkpoint=checkpoint,
     )  # fmt: skip
     note = ""
     if result.interrupted:

@@ -230,7 +230,7 @@ def compare_renderers(
                     stamps: list[tuple[float, float]] = []
                     result = render(
                         pss_target, make_renderer(method, tour_length=tour_length, p_large=p_large), key=jax.random.key(1000 * r + 7),
-                        seconds=seconds, lanes=lanes_of[method], progress=progress,
+                        seconds=seconds, num_lanes=lanes_of[method], progress=progress,
                         on_update=lambda img, _s: stamps.append((time.perf_counter(), relative_mse(img, reference))),  # noqa: B023
                     )
                     shift = stamps[-1][0] - result.seconds if stamps else 0.0

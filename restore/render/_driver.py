@@ -51,7 +51,7 @@ class RenderResult:
         compile_seconds: time spent compiling the jitted initialisation and chunk (near
             zero when an earlier render of the same set-up compiled them).
         steps: renderer steps taken per lane within the budget.
-        lanes: number of lanes.
+        num_lanes: number of lanes.
         statistics: the renderer's diagnostics, a typed record (`RestoreStatistics`,
             `PSSMLTStatistics`, `ERPTStatistics`, `UniformStatistics`): acceptance rate, tours,
             `c`, `Z_hat`, ..., with the renderer's tail shape (Restore: `tour_k_hat` of its tour
@@ -60,7 +60,7 @@ class RenderResult:
         interrupted: the run was stopped by Ctrl-C (KeyboardInterrupt); the image holds
             every chunk finished before it.
         finishing_steps: steps taken after the budget to complete open work (Restore's
-            open tours with `complete_tours`), on all lanes at first and then on the few
+            open tours with `finish_tours`), on all lanes at first and then on the few
             lanes still open; their evaluations and time are included in `evaluations`
             and `seconds`.
         finishing_seconds: the part of `seconds` spent finishing.
@@ -71,7 +71,7 @@ class RenderResult:
     seconds: float
     compile_seconds: float
     steps: int
-    lanes: int
+    num_lanes: int
     statistics: RenderStatistics
     interrupted: bool = False
     finishing_steps: int = 0
@@ -103,7 +103,7 @@ def render(
     key,
     seconds: float | None = None,
     evaluations: int | None = None,
-    lanes: int = 4096,
+    num_lanes: int = 4096,
     chunk: int | None = None,
     progress: bool = True,
     on_update: Callable[[np.ndarray, RenderStatistics], None] | None = None,
@@ -123,7 +123,7 @@ def render(
     Budgets: `evaluations` counts every target evaluation, initialisation (bootstrap)
     included; the run takes the largest whole number of steps that fits, so it stops on
     the budget exactly when `evaluations - init_cost` is a multiple of the step cost
-    (`lanes` for all but `ERPT`, whose step is a round). `seconds` is checked between
+    (`num_lanes` for all but `ERPT`, whose step is a round). `seconds` is checked between
     chunks; near the end the chunk is shortened from the measured time per step, so the
     run overshoots by at most about one step. With both, the first spent stops the run.
 
@@ -144,7 +144,7 @@ def render(
         key: a JAX PRNG key.
         seconds: wall-time budget (positive).
         evaluations: evaluation budget (positive integer).
-        lanes: parallel lanes (chains, tours or samples per step).
+        num_lanes: parallel lanes (chains, tours or samples per step).
         chunk: steps per jitted call; default about 2^20 evaluations' worth.
         progress: show a rich progress bar.
         on_update: called as `on_update(image, statistics)` after every chunk, with the image
@@ -173,7 +173,7 @@ def render(
         raise TypeError(f"renderer must be a restore.render renderer, got {type(renderer).__name__}")
     check_target(target, needs_gradient=renderer.uses_gradient)
     seconds, evaluations = _check_budget(seconds, evaluations)
-    lanes = check_lanes(lanes)
+    lanes = check_lanes(num_lanes)
     checkpoint = as_checkpoint(checkpoint)
     if on_update is not None and not callable(on_update):
         raise TypeError("on_update must be callable as on_update(image, statistics)")
@@ -313,7 +313,7 @@ def render(
         seconds=wall,
         compile_seconds=compile_seconds,
         steps=steps,
-        lanes=lanes,
+        num_lanes=lanes,
         statistics=statistics,
         interrupted=interrupted,
         finishing_steps=finishing,

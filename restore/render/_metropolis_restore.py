@@ -31,10 +31,10 @@ class MetropolisRestore(AbstractPSSRestore):
         tour_length: mean number of local moves per tour `L`; `c = Z_hat / L`.
         rate: give `c` directly instead of `tour_length`.
         n_bootstrap: uniform draws in the bootstrap: `Z_hat` and the lanes' starts.
-        complete_tours: (default) lanes start at uniform draws and, when the budget is
+        finish_tours: (default) lanes start at uniform draws and, when the budget is
             spent, every open tour runs to its end; the image divides by the number of
             tours, so it has no bias from unfinished tours (as the paper's authors run it).
-        start: only with `complete_tours=False`: `"stationary"` (default) starts the lanes
+        start: only with `finish_tours=False`: `"stationary"` (default) starts the lanes
             in the jump chain's stationary law `lum + c`, resampled from the bootstrap;
             `"uniform"` at tour starts (darker in short runs: tours in bright regions are
             still open at the end).
@@ -48,9 +48,9 @@ class MetropolisRestore(AbstractPSSRestore):
         rate: float | None = None,
         n_bootstrap: int = 65536,
         start: str | None = None,
-        complete_tours: bool = True,
+        finish_tours: bool = True,
     ):
-        self._setup(TorusMetropolis(mutation), tour_length, rate, n_bootstrap, start, complete_tours)
+        self._setup(TorusMetropolis(mutation), tour_length, rate, n_bootstrap, start, finish_tours)
 
     def local_kernel(self, target) -> TorusMetropolis:
         """The small step, keeping the target's `frozen_coordinates` (on `MultiplexedBDPT`:

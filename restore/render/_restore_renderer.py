@@ -53,7 +53,7 @@ as for the core's estimates). `render` warns when `k_hat > TAIL_WARNING`: a few 
 regions (the fireflies of path tracing; the caustic of the pool scene) then carry much
 of the light, and another render can differ by more than this one's noise suggests.
 
-**Start (open tours).** With `complete_tours=False` the run stops at the budget and
+**Start (open tours).** With `finish_tours=False` the run stops at the budget and
 the image uses `K` as above. The embedded jump chain (kill with probability `kappa`, else a local move) has
 the stationary law `pi_J ∝ lum + c`: `(p + c) kappa = c` regenerates uniformly and
 `(p + c)(1 - kappa) = p` is left invariant by `K`. Started in `pi_J`, every step's splat
@@ -294,7 +294,7 @@ class AbstractPSSRestore(AbstractRenderer):
         n_bootstrap: uniform draws in the bootstrap (the estimate of `Z` and the
             stationary start); none are made with `rate` given and `start="uniform"`.
         start: `"uniform"` (tour starts) or `"stationary"`, see the module docstring.
-        complete_tours: finish every tour started before the budget ends and divide by
+        finish_tours: finish every tour started before the budget ends and divide by
             the number of tours (default); else stop at the budget and divide by `K`.
     """
 
@@ -305,9 +305,9 @@ class AbstractPSSRestore(AbstractRenderer):
     rate: float | None
     n_bootstrap: int
     start: str
-    complete_tours: bool
+    finish_tours: bool
 
-    def _setup(self, kernel, tour_length, rate, n_bootstrap, start, complete_tours):
+    def _setup(self, kernel, tour_length, rate, n_bootstrap, start, finish_tours):
         tour_length = float(tour_length)
         if not (math.isfinite(tour_length) and tour_length > 0):
             raise ValueError(f"tour_length must be positive and finite, got {tour_length!r}")
@@ -319,16 +319,16 @@ class AbstractPSSRestore(AbstractRenderer):
         self.tour_length = tour_length
         self.rate = rate
         self.n_bootstrap = check_count(n_bootstrap, "n_bootstrap", 2)
-        if not isinstance(complete_tours, bool):
-            raise TypeError(f"complete_tours must be True or False, got {complete_tours!r}")
+        if not isinstance(finish_tours, bool):
+            raise TypeError(f"finish_tours must be True or False, got {finish_tours!r}")
         if start is None:
-            start = "uniform" if complete_tours else "stationary"
+            start = "uniform" if finish_tours else "stationary"
         if start not in ("stationary", "uniform"):
             raise ValueError(f"start must be 'stationary' or 'uniform', got {start!r}")
-        if complete_tours and start != "uniform":
-            raise ValueError("complete tours begin at regeneration draws: use start='uniform' (or complete_tours=False)")
+        if finish_tours and start != "uniform":
+            raise ValueError("complete tours begin at regeneration draws: use start='uniform' (or finish_tours=False)")
         self.start = start
-        self.complete_tours = complete_tours
+        self.finish_tours = finish_tours
 
     @property
     def _bootstraps(self) -> bool:
@@ -336,7 +336,7 @@ class AbstractPSSRestore(AbstractRenderer):
 
     @property
     def finishes(self) -> bool:  # type: ignore[override]
-        return self.complete_tours
+        return self.finish_tours
 
     @property
     def uses_gradient(self) -> bool:  # type: ignore[override]
@@ -440,7 +440,7 @@ class AbstractPSSRestore(AbstractRenderer):
     def speculates(self) -> bool:
         """Open tours are finished by speculative steps (`restore.speculative_steps`): the local
         kernel proposes from the position alone, so a lane runs many events per batched call."""
-        return self.complete_tours and self.kernel.proposes_from_position
+        return self.finish_tours and self.kernel.proposes_from_position
 
     def finishing_step(self, target, key: PRNGKeyArray, state: RestoreRenderState, slots: int) -> RestoreRenderState:
         """Advance the open tours (no new tour starts) with one batched evaluation of `slots`
@@ -498,7 +498,7 @@ class AbstractPSSRestore(AbstractRenderer):
 
     def open_tours(self, state: RestoreRenderState) -> int:
         """Lanes whose counted tour is still running (host-side): `finish` runs them to their end."""
-        return int(jnp.sum(state.in_tour)) if self.complete_tours else 0
+        return int(jnp.sum(state.in_tour)) if self.finish_tours else 0
 
     def stop_starting(self, state: RestoreRenderState) -> RestoreRenderState:
         """No new counted tours from now on: the open ones run to their end."""
@@ -509,7 +509,7 @@ class AbstractPSSRestore(AbstractRenderer):
         step one batched evaluation of `slots` points (default: the lanes) shared among the
         open tours (`finishing_step`); at most `max_steps` steps if given. Returns the state
         and the steps taken."""
-        if not self.complete_tours:
+        if not self.finish_tours:
             return state, jnp.zeros((), jnp.int32)
         lanes = state.tour_moves.shape[0]
         slots = lanes if slots is None else min(int(slots), lanes)
@@ -528,7 +528,7 @@ class AbstractPSSRestore(AbstractRenderer):
     def scale(self, target, params: RestoreParams, tally: RestoreTally):
         """`W H c / N` (complete tours; `N` = tours started = lanes + kills while starting)
         or `W H c / K` (open tours): the image is `scale x S_j` (module docstring)."""
-        if self.complete_tours:
+        if self.finish_tours:
             return ratio(target.num_pixels * params.rate, tally.kills)
         return ratio(target.num_pixels * params.rate, tally.kill_probability)
 
@@ -539,7 +539,7 @@ class AbstractPSSRestore(AbstractRenderer):
         finished tours' durations `T` too (module docstring): `tour_k_hat`, their Pareto shape,
         fitted to the buffer of the longest tours; `effective_tours`; `tour_duration_mean`."""
         k = tally.kill_probability
-        if self.complete_tours:  # counted tours only: their local moves per tour
+        if self.finish_tours:  # counted tours only: their local moves per tour
             mean_length = ratio(tally.local_moves, tally.kills)
         else:
             mean_length = ratio(tally.lane_steps - k, k)

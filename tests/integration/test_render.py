@@ -209,7 +209,7 @@ def test_open_tours_from_a_uniform_start_show_their_finite_run_bias():
     bias of order (bright-region sojourn) / (steps per lane): long tours in bright bumps are
     still running when the budget ends. Finishing them (complete tours, the default, as in
     `RENDERERS`) removes it; the block test must see the difference."""
-    renderer = rr.MetropolisRestore(tour_length=16, n_bootstrap=16384, start="uniform", complete_tours=False)
+    renderer = rr.MetropolisRestore(tour_length=16, n_bootstrap=16384, start="uniform", finish_tours=False)
     _, late, st = realisations(renderer, 128, 640, r=12)
     p_value, t_max = block_test(late)
     assert p_value < 1e-6 and late.mean(0).sum() < 0.9 * EXACT.sum(), (p_value, t_max)
@@ -305,13 +305,13 @@ def test_bad_inputs_raise_clear_errors():
     with pytest.raises(ValueError, match="budget"):
         rr.render(TARGET, renderer, key=key)
     with pytest.raises(ValueError, match="lanes"):
-        rr.render(TARGET, renderer, key=key, evaluations=100, lanes=0)
+        rr.render(TARGET, renderer, key=key, evaluations=100, num_lanes=0)
     with pytest.raises(ValueError, match="evaluations"):
         rr.render(TARGET, renderer, key=key, evaluations=0)
     with pytest.raises(ValueError, match="chunk"):
         rr.render(TARGET, renderer, key=key, evaluations=100, chunk=0)
     with pytest.raises(ValueError, match="does not cover"):
-        rr.render(TARGET, rr.PSSMLT(n_bootstrap=4096), key=key, evaluations=4096, lanes=64)
+        rr.render(TARGET, rr.PSSMLT(n_bootstrap=4096), key=key, evaluations=4096, num_lanes=64)
     with pytest.raises(TypeError, match="not a PSS target"):
         rr.render(object(), renderer, key=key, evaluations=100)
     with pytest.raises(TypeError, match="renderer"):
@@ -334,11 +334,11 @@ def test_black_target_is_reported_not_rendered_as_nan():
 # ---------------------------------------------------------------------- the driver
 def test_driver_stops_on_the_evaluation_budget_and_reports_progress():
     updates = []
-    renderer = rr.MetropolisRestore(tour_length=8, n_bootstrap=1000, complete_tours=False)
+    renderer = rr.MetropolisRestore(tour_length=8, n_bootstrap=1000, finish_tours=False)
     lanes = 256
     budget = renderer.init_cost(lanes) + 37 * lanes
     result = rr.render(
-        TARGET, renderer, key=jax.random.key(0), evaluations=budget, lanes=lanes, chunk=10, progress=False,
+        TARGET, renderer, key=jax.random.key(0), evaluations=budget, num_lanes=lanes, chunk=10, progress=False,
         on_update=lambda image, st: updates.append((image.shape, st.tours_completed)),
     )
     assert result.evaluations == budget and result.steps == 37
@@ -348,7 +348,7 @@ def test_driver_stops_on_the_evaluation_budget_and_reports_progress():
     assert np.all(np.isfinite(result.image)) and result.compile_seconds > 0 and result.seconds > 0
     assert isinstance(result.statistics, rr.RestoreStatistics) and result.statistics.tours_completed == updates[-1][1]
     # a budget that is not a whole number of steps is never exceeded
-    odd = rr.render(TARGET, rr.UniformSampler(), key=jax.random.key(1), evaluations=1000, lanes=64, progress=False)
+    odd = rr.render(TARGET, rr.UniformSampler(), key=jax.random.key(1), evaluations=1000, num_lanes=64, progress=False)
     assert odd.evaluations == 960 and odd.steps == 15
 
 
@@ -371,7 +371,7 @@ def test_driver_finishes_every_open_tour_in_smaller_batches(lanes, monkeypatch):
     renderer = rr.MetropolisRestore(tour_length=8, n_bootstrap=1000)
     updates: list[float] = []
     budget = renderer.init_cost(lanes) + 40 * lanes
-    result = rr.render(TARGET, renderer, key=jax.random.key(3), evaluations=budget, lanes=lanes, chunk=10,
+    result = rr.render(TARGET, renderer, key=jax.random.key(3), evaluations=budget, num_lanes=lanes, chunk=10,
                        progress=False, on_update=lambda image, st: updates.append(st.tours_completed))
     st = result.statistics
     assert isinstance(st, rr.RestoreStatistics) and result.steps == 40 and result.finishing_steps > 0
@@ -433,7 +433,7 @@ def test_a_repeated_render_reuses_its_compiled_programs():
         compiled.clear()
         result = rr.render(
             target, renderer, key=jax.random.key(seed), evaluations=renderer.init_cost(lanes) + 30 * lanes,
-            lanes=lanes, chunk=10, progress=False,
+            num_lanes=lanes, chunk=10, progress=False,
         )
         return result, sum("<lambda>" in str(f) for f in compiled)
 
@@ -463,7 +463,7 @@ def test_a_repeated_render_reuses_its_compiled_programs():
 
 
 def test_driver_time_budget():
-    result = rr.render(TARGET, rr.UniformSampler(), key=jax.random.key(2), seconds=0.3, lanes=256, progress=True)
+    result = rr.render(TARGET, rr.UniformSampler(), key=jax.random.key(2), seconds=0.3, num_lanes=256, progress=True)
     assert result.seconds >= 0.3 and result.seconds < 5 and result.steps > 0
     assert result.evaluations == 256 * result.steps
     # an ERPT step is a round: B seeds and M mutations of each of the `lanes` chains
@@ -480,7 +480,7 @@ def test_ctrl_c_keeps_the_finished_chunks():
             raise KeyboardInterrupt
 
     renderer = rr.MetropolisRestore(tour_length=8, n_bootstrap=1000)
-    result = rr.render(TARGET, renderer, key=jax.random.key(5), evaluations=10**9, lanes=256, chunk=10,
+    result = rr.render(TARGET, renderer, key=jax.random.key(5), evaluations=10**9, num_lanes=256, chunk=10,
                        progress=False, on_update=interrupt_on_second_update)
     assert result.interrupted and result.steps == 20 and len(calls) == 2
     assert np.all(np.isfinite(result.image)) and result.image.sum() > 0

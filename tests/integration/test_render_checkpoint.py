@@ -10,7 +10,7 @@ from restore.render import ERPT, PSSMLT, MetropolisRestore, render
 from targets import AnalyticImage
 
 TARGET = AnalyticImage.default(dim=3, resolution=(8, 8), num_bumps=3)
-BUDGET = dict(key=jax.random.key(2), evaluations=120_000, lanes=128, chunk=40, progress=False)
+BUDGET = dict(key=jax.random.key(2), evaluations=120_000, num_lanes=128, chunk=40, progress=False)
 
 
 def _interrupt_after(chunks: int):
@@ -43,7 +43,7 @@ def test_interrupted_and_resumed_render_is_bit_identical(renderer, tmp_path):
 
 def test_time_budget_counts_the_time_spent_before_the_interruption(tmp_path):
     checkpoint = tmp_path / "render.ckpt"
-    budget = dict(key=jax.random.key(0), seconds=1.5, lanes=128, progress=False, checkpoint=checkpoint)
+    budget = dict(key=jax.random.key(0), seconds=1.5, num_lanes=128, progress=False, checkpoint=checkpoint)
     partial = render(TARGET, MetropolisRestore(), on_update=_interrupt_after(3), **budget)
     assert partial.interrupted
     resumed = render(TARGET, MetropolisRestore(), **budget)
@@ -58,7 +58,7 @@ def test_checkpoint_of_another_render_is_refused(tmp_path):
     with pytest.raises(CheckpointError, match="renderer: checkpoint has"):
         render(TARGET, PSSMLT(), checkpoint=checkpoint, **BUDGET)
     with pytest.raises(CheckpointError, match="lanes: checkpoint has 128, this run has 64"):
-        render(TARGET, MetropolisRestore(), checkpoint=checkpoint, **{**BUDGET, "lanes": 64})
+        render(TARGET, MetropolisRestore(), checkpoint=checkpoint, **{**BUDGET, "num_lanes": 64})
     fresh = render(TARGET, PSSMLT(), checkpoint=restore.Checkpoint(checkpoint, resume=False), **BUDGET)
     assert not fresh.interrupted and "PSSMLT" in read_header(checkpoint)["renderer"]
 

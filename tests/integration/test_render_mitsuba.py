@@ -52,7 +52,7 @@ def _renders(target, method: str, r: int = R) -> np.ndarray:
     """`r` luminance images of `method` from independent keys."""
     keys = jax.random.split(jax.random.key(3), r)
     images = [
-        rr.render(target, RENDERERS[method](), key=k, evaluations=EVALUATIONS, lanes=LANES, progress=False).image
+        rr.render(target, RENDERERS[method](), key=k, evaluations=EVALUATIONS, num_lanes=LANES, progress=False).image
         for k in keys
     ]
     return np.stack(images).astype(np.float64) @ LUMINANCE

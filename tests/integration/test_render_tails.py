@@ -86,7 +86,7 @@ def test_total_duration_of_complete_tours_is_z_over_c():
     renderer = rr.MetropolisRestore(tour_length=16, n_bootstrap=16384)
     lanes, steps = 2048, 48
     result = rr.render(TARGET, renderer, key=jax.random.key(2), evaluations=renderer.init_cost(lanes) + steps * lanes,
-                       lanes=lanes, progress=False)
+                       num_lanes=lanes, progress=False)
     st = result.statistics
     assert isinstance(st, rr.RestoreStatistics)
     tours = st.tours_completed
@@ -107,7 +107,7 @@ def test_heavy_tailed_tours_are_flagged(a, heavy):
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         result = rr.render(PowerImage(a), renderer, key=jax.random.key(0), evaluations=4096 + 256 * 400,
-                           lanes=256, progress=False)
+                           num_lanes=256, progress=False)
     flagged = [w for w in caught if issubclass(w.category, UnreliableEstimateWarning)]
     assert isinstance(result.statistics, rr.RestoreStatistics)
     k = result.statistics.tour_k_hat
@@ -125,7 +125,7 @@ def test_pssmlt_reports_the_tail_of_the_luminance_behind_its_z_hat(a):
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         result = rr.render(PowerImage(a), rr.PSSMLT(n_bootstrap=65536), key=jax.random.key(1),
-                           evaluations=65536 + 256 * 4, lanes=256, progress=False)
+                           evaluations=65536 + 256 * 4, num_lanes=256, progress=False)
     flagged = [w for w in caught if issubclass(w.category, UnreliableEstimateWarning)]
     assert isinstance(result.statistics, rr.PSSMLTStatistics)
     k = result.statistics.z_k_hat
@@ -135,5 +135,5 @@ def test_pssmlt_reports_the_tail_of_the_luminance_behind_its_z_hat(a):
 
 def test_renderers_without_tours_report_no_tail():
     result = rr.render(TARGET, rr.PSSMLT(n_bootstrap=1024), key=jax.random.key(0), evaluations=1024 + 64 * 20,
-                       lanes=64, progress=False)
+                       num_lanes=64, progress=False)
     assert isinstance(result.statistics, rr.PSSMLTStatistics) and not hasattr(result.statistics, "tour_k_hat")

@@ -25,7 +25,7 @@ def record(kind, **values):
 def result(**changes):
     fields = dict(
         image=np.zeros((2, 2, 3), np.float32), evaluations=1_200_000, seconds=10.0, compile_seconds=6.5, steps=100,
-        lanes=8192, statistics=record(RestoreStatistics, tours_completed=80_000, effective_tours=3_000.0, tour_k_hat=0.3),
+        num_lanes=8192, statistics=record(RestoreStatistics, tours_completed=80_000, effective_tours=3_000.0, tour_k_hat=0.3),
         finishing_seconds=2.0,
     )  # fmt: skip
     return RenderResult(**{**fields, **changes})
