@@ -33,8 +33,11 @@ from ._options import Checkpoint as Checkpoint
 from ._options import SaveDraws as SaveDraws
 from ._pareto import K_HAT_LIMIT as K_HAT_LIMIT
 from ._point import Point as Point
+from ._rate import JumpEvent as JumpEvent
 from ._rate import PilotEstimate as PilotEstimate
+from ._rate import jump_event as jump_event
 from ._restore import AbstractRestore as AbstractRestore
+from ._restore import KillTerms as KillTerms
 from ._restore import Restore as Restore
 from ._restore import RestoreState as RestoreState
 from ._result import LogEstimate as LogEstimate

@@ -35,6 +35,30 @@ def log_total_rate(log_gamma: Array, log_local_rate: Array) -> Array:
     return jnp.logaddexp(log_local_rate, log_gamma)
 
 
+class JumpEvent(NamedTuple):
+    """The next event of a lane that moves locally at rate `r` and is killed at rate `gamma`.
+
+    Attributes:
+        killed: the event is a kill (probability `gamma / (r + gamma)`), else a local move.
+        holding_time: the time held before it (exponential, mean `1 / (r + gamma)`).
+        expected_holding_time: `1 / (r + gamma)`, the Rao-Blackwellised weight of the state held.
+    """
+
+    killed: Array
+    holding_time: Array
+    expected_holding_time: Array
+
+
+def jump_event(log_uniform: Array, exponential: Array, log_gamma: Array, log_local_rate: Array) -> JumpEvent:
+    """The kill-or-move event of a jump-Restore lane, from its random numbers: `log_uniform`
+    (the log of a uniform draw) decides a kill, `exponential` (a standard exponential draw)
+    sets the holding time. The one place the event is written: the step (`Restore`) and the
+    speculative steps that finish tours both use it, each drawing its numbers its own way."""
+    mean_hold = jnp.exp(-log_total_rate(log_gamma, log_local_rate))
+    killed = log_uniform < kill_log_probability(log_gamma, log_local_rate)
+    return JumpEvent(killed, exponential * mean_hold, mean_hold)
+
+
 class PilotEstimate(NamedTuple):
     """Importance-sampling estimate of `log Z` from draws of the regeneration distribution.
 

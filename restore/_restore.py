@@ -22,10 +22,9 @@ from ._point import Point, evaluate
 from ._random import log_uniform
 from ._rate import (
     PilotEstimate,
-    kill_log_probability,
+    jump_event,
     log_kill_rate,
     log_total_kill_rate,
-    log_total_rate,
     pilot_log_z,
 )
 from ._sampler import AbstractSampler, RunFacts, StepInfo
@@ -84,6 +83,24 @@ def _as_phases(value, name: str) -> tuple:
 def cycle(tour: Array, num_phases: int) -> Array:
     """The default phase rule: tour `i` uses phase `i mod K`."""
     return jnp.mod(tour, num_phases)
+
+
+class KillTerms(NamedTuple):
+    """The terms of a Restore lane's kill rate at an evaluated point (`AbstractRestore.kill_terms`).
+
+    Attributes:
+        point: the point (its log density `-inf` where the adjoint ratio was NaN).
+        invalid: the point's density or adjoint ratio could not be evaluated.
+        log_regeneration: `log q(x)`, the phase's reference density.
+        log_kill_rate: `log(c_tilde q(x) / p(x))`, the regeneration part of the kill rate.
+        adjoint_ratio: `L* p / p` at the point (zero for pi-invariant dynamics).
+    """
+
+    point: Point
+    invalid: Array
+    log_regeneration: Array
+    log_kill_rate: Array
+    adjoint_ratio: Array
 
 
 class AbstractRestore(AbstractSampler):
@@ -299,7 +316,9 @@ class AbstractRestore(AbstractSampler):
     def run_facts(self) -> RunFacts:
         return RunFacts(self.effective_log_rate, self.tour_length)
 
-    def _require_rate(self) -> Array:
+    def calibrated_log_rates(self) -> Array:
+        """`log c_tilde` (one per phase); a `ValueError` that says what to do if the sampler has
+        a `tour_length` but was not calibrated yet."""
         if self.log_rate is None:
             raise ValueError(
                 "this sampler has a tour_length but no log_rate yet: call sampler.calibrate(key) "
@@ -319,8 +338,10 @@ class AbstractRestore(AbstractSampler):
         rule = self.phase_rule or (lambda i: cycle(i, self.num_phases))
         return jnp.clip(jnp.asarray(rule(tour), jnp.int32), 0, self.num_phases - 1)
 
-    def _terms(self, phase: Array | int, point: Point, invalid: Array, log_rates: Array):
-        """Kill-rate terms at an evaluated point: `(point, invalid, log_q, log_kill, adjoint)`."""
+    def kill_terms(self, phase: Array | int, point: Point, invalid: Array, log_rates: Array) -> KillTerms:
+        """The kill rate's terms at an evaluated `point` of phase `phase`, for `log_rates`
+        (`calibrated_log_rates()`): a `KillTerms`. A point where the adjoint ratio is NaN is
+        marked invalid and given zero density."""
 
         def one(k: int):
             log_q = self.transfers[k].reference.log_prob(point.position)
@@ -334,17 +355,17 @@ class AbstractRestore(AbstractSampler):
         dtype = point.logdensity.dtype
         log_q, log_rate, adjoint = log_q.astype(dtype), log_rate.astype(dtype), adjoint.astype(dtype)
         if all(d.is_invariant for d in self.dynamics):
-            return point, invalid, log_q, log_kill_rate(log_rate, log_q, point.logdensity), adjoint
+            return KillTerms(point, invalid, log_q, log_kill_rate(log_rate, log_q, point.logdensity), adjoint)
         finite = jnp.isfinite(point.logdensity)
         bad = finite & jnp.isnan(adjoint)
         point = point._replace(logdensity=jnp.where(bad, -jnp.inf, point.logdensity))
         adjoint = jnp.where(finite & ~bad, adjoint, 0.0)
-        return point, invalid | bad, log_q, log_kill_rate(log_rate, log_q, point.logdensity), adjoint
+        return KillTerms(point, invalid | bad, log_q, log_kill_rate(log_rate, log_q, point.logdensity), adjoint)
 
     # ------------------------------------------------------------------ init / step
     def init(self, key: PRNGKeyArray, position: Array | None = None, phase: int | Array = 0) -> RestoreState:
         """Start a lane at `position`, or at a draw of the first phase's reference (a tour start)."""
-        log_rates = self._require_rate()
+        log_rates = self.calibrated_log_rates()
         phase = jnp.asarray(phase, jnp.int32)
         if position is None:
             position = self._by_phase(phase, lambda k: self.transfers[k].reference.sample(key).astype(self.dtype))
@@ -352,7 +373,7 @@ class AbstractRestore(AbstractSampler):
             position = check_point(position, self.dim, "position", finite=True)
         position = position.astype(self.dtype)
         point, invalid = evaluate(self.logdensity, position, self.uses_gradient, self.has_aux)
-        point, _, _, log_kill, adjoint = self._terms(phase, point, invalid, log_rates)
+        point, _, _, log_kill, adjoint = self.kill_terms(phase, point, invalid, log_rates)
         zero = jnp.zeros((), jnp.int32)
         return RestoreState(
             point.position, point.logdensity, point.grad, log_kill, adjoint, phase, zero, jnp.zeros((), bool), point.aux
@@ -385,7 +406,7 @@ class AbstractRestore(AbstractSampler):
 
     def _in_phase(self, state: RestoreState, fn: Callable[[int, Array], Any]):
         """`fn(k, log_rates)` for the lane's phase `k`."""
-        log_rates = self._require_rate()
+        log_rates = self.calibrated_log_rates()
         if self.num_phases == 1:
             return fn(0, log_rates)
         return jax.lax.switch(state.phase, [lambda k=k: fn(k, log_rates) for k in range(self.num_phases)])
@@ -417,9 +438,10 @@ class AbstractRestore(AbstractSampler):
         return (*log_total_kill_rate(state.log_kill_rate, state.adjoint_ratio), log_r)
 
     def _killed(self, k: int, key: PRNGKeyArray, state: RestoreState) -> Array:
-        """Whether the event is a kill (against a local move)."""
+        """Whether the event is a kill (against a local move), decided as the step decides it."""
         log_gamma, _, log_r = self._kill_terms(k, state)
-        return log_uniform(key, state.logdensity.dtype) < kill_log_probability(log_gamma, log_r)
+        dtype = state.logdensity.dtype
+        return jump_event(log_uniform(key, dtype), jnp.ones((), dtype), log_gamma, log_r).killed
 
     def _regenerate(self, phase: Array, key: PRNGKeyArray, position: Array) -> Array:
         """The start of the next tour, of phase `phase`, after a kill at `position`."""
@@ -429,10 +451,9 @@ class AbstractRestore(AbstractSampler):
         dynamics = cast(AbstractJumpDynamics, self.dynamics[k])
         dtype = state.logdensity.dtype
         log_gamma, negative, log_r = self._kill_terms(k, state)
+        event = jump_event(log_uniform(keys.event, dtype), jax.random.exponential(keys.hold, dtype=dtype), log_gamma, log_r)
         if killed is None:
-            killed = self._killed(k, keys.event, state)
-        mean_hold = jnp.exp(-log_total_rate(log_gamma, log_r))
-        hold = jax.random.exponential(keys.hold, dtype=dtype) * mean_hold
+            killed = event.killed
 
         point = Point(state.position, state.logdensity, state.logdensity_grad, state.aux)
         candidate, aux = dynamics.propose(keys.propose, point, self.log_value)
@@ -445,7 +466,7 @@ class AbstractRestore(AbstractSampler):
         new_point = jax.tree.map(lambda a, b: jnp.where(killed, a, b), evaluated, moved)
         new_phase = jnp.where(killed, next_phase, state.phase) if self.num_phases > 1 else state.phase
 
-        new_point, invalid, log_q, log_kill, adjoint = self._terms(new_phase, new_point, invalid, log_rates)
+        new_point, invalid, log_q, log_kill, adjoint = self.kill_terms(new_phase, new_point, invalid, log_rates)
         new_state = RestoreState(
             new_point.position,
             new_point.logdensity,
@@ -460,8 +481,8 @@ class AbstractRestore(AbstractSampler):
         log_weight = jnp.where(killed, new_point.logdensity - log_q, -jnp.inf)
         info = StepInfo(
             position=state.position,
-            holding_time=hold,
-            expected_holding_time=mean_hold,
+            holding_time=event.holding_time,
+            expected_holding_time=event.expected_holding_time,
             regenerated=killed,
             accepted=local_info.accepted & ~killed,
             acceptance_probability=jnp.where(killed, 0.0, local_info.acceptance_probability).astype(dtype),
@@ -485,7 +506,7 @@ class AbstractRestore(AbstractSampler):
         start = self.transfers[k].sample(k_move, state.position)
         moved = dynamics.advance(k_move, state.position, gap, self.log_value).astype(dtype)
         evaluated, invalid = evaluate(self.logdensity, jnp.where(pending, start.astype(dtype), moved), self.uses_gradient, self.has_aux)
-        evaluated, invalid, log_q, log_kill, adjoint = self._terms(state.phase, evaluated, invalid, log_rates)
+        evaluated, invalid, log_q, log_kill, adjoint = self.kill_terms(state.phase, evaluated, invalid, log_rates)
 
         log_gamma, negative = log_total_kill_rate(log_kill, adjoint)
         log_ratio = log_gamma - jnp.log(bound)
@@ -528,11 +549,11 @@ class AbstractRestore(AbstractSampler):
         to `restore.rate_bound` to find a thinning bound over a region, e.g.
         `restore.rate_bound(process.kill_rate, lower, upper, key=key).bound`.
         """
-        log_rates = self._require_rate()
+        log_rates = self.calibrated_log_rates()
         position = check_point(position, self.dim, "position", finite=True).astype(self.dtype)
         point, invalid = evaluate(self.logdensity, position, self.uses_gradient, self.has_aux)
         phase = jnp.asarray(phase, jnp.int32)
-        _, _, _, log_kill, adjoint = self._terms(phase, point, invalid, log_rates)
+        _, _, _, log_kill, adjoint = self.kill_terms(phase, point, invalid, log_rates)
         return adjoint + jnp.exp(log_kill)
 
     def advance_position(self, key: PRNGKeyArray, state: RestoreState, duration: Array) -> Array:

@@ -41,7 +41,7 @@ from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 from ._jump_restore import JumpRestore
 from ._point import Point, evaluate
 from ._random import log_uniform
-from ._rate import kill_log_probability, log_total_rate
+from ._rate import jump_event
 from ._restore import RestoreState
 from ._sampler import StepInfo
 from .dynamics import AbstractJumpDynamics
@@ -143,7 +143,7 @@ def speculative_steps(
     for the lane's predicted `acceptance` probability (a guess: any value is exact).
     """
     check_speculative(sampler)
-    log_rates = sampler._require_rate()
+    log_rates = sampler.calibrated_log_rates()
     dynamics = cast(AbstractJumpDynamics, sampler.dynamics[0])
     n_lanes = active.shape[0]
     dtype = states.logdensity.dtype
@@ -202,7 +202,7 @@ def speculative_steps(
     )
     candidates = candidates.astype(states.position.dtype)
     evaluated, invalid = jax.vmap(lambda y: evaluate(sampler.logdensity, y, False, sampler.has_aux))(candidates)
-    _, invalid, _, candidate_log_kill, _ = jax.vmap(lambda p, bad: sampler._terms(0, p, bad, log_rates))(
+    _, invalid, _, candidate_log_kill, _ = jax.vmap(lambda p, bad: sampler.kill_terms(0, p, bad, log_rates))(
         evaluated, invalid
     )
 
@@ -218,10 +218,9 @@ def speculative_steps(
     )
     current_log_kill = held_value(held.log_kill_rate, candidate_log_kill)
 
-    killed = jax.vmap(lambda k, lg: log_uniform(k, dtype) < kill_log_probability(lg, log_r))(
-        jax.random.split(k_event, slots), current_log_kill
-    )
-    mean_hold = jnp.exp(-log_total_rate(current_log_kill, log_r))
+    uniforms = jax.vmap(lambda k: log_uniform(k, dtype))(jax.random.split(k_event, slots))
+    event = jump_event(uniforms, jax.random.exponential(k_hold, (slots,), dtype), current_log_kill, log_r)
+    killed = event.killed
     moved, local = jax.vmap(dynamics.accept)(jax.random.split(k_accept, slots), current, evaluated, proposal_aux)
     took = local.accepted.astype(jnp.int32)
 
@@ -247,8 +246,8 @@ def speculative_steps(
 
     info = StepInfo(
         position=current.position,
-        holding_time=jax.random.exponential(k_hold, (slots,), dtype) * mean_hold,
-        expected_holding_time=mean_hold,
+        holding_time=event.holding_time,
+        expected_holding_time=event.expected_holding_time,
         regenerated=killed,
         accepted=local.accepted & ~killed,
         acceptance_probability=jnp.where(killed, 0.0, local.acceptance_probability).astype(dtype),
