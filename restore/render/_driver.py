@@ -111,38 +111,19 @@ def render(
 ) -> RenderResult:
     """Render `target` with `renderer` until the time or evaluation budget is spent.
 
-    The renderer's `init` and a chunk of `chunk` steps (a `fori_loop`) are compiled once,
-    ahead of the run (reported as `compile_seconds`, not counted in `seconds`), and kept
-    for the next renders of the same set-up in this process (the same target object,
-    an equal renderer, the same lanes: see `_programs`), which then start at once. Between
-    chunks the device tally is added to float64 host totals and zeroed, the progress bar
-    advances, and `on_update(image_so_far, statistics)` is called (progressive output).
-    Ctrl-C (KeyboardInterrupt) stops the run and returns the image of the finished chunks,
-    with `interrupted=True`.
-
-    Budgets: `evaluations` counts every target evaluation, initialisation (bootstrap)
-    included; the run takes the largest whole number of steps that fits, so it stops on
-    the budget exactly when `evaluations - init_cost` is a multiple of the step cost
-    (`num_lanes` for all but `ERPT`, whose step is a round). `seconds` is checked between
-    chunks; near the end the chunk is shortened from the measured time per step, so the
-    run overshoots by at most about one step. With both, the first spent stops the run.
-
-    Finishing: a renderer with open work at the end of the budget (`renderer.finishes`:
-    Restore with complete tours) then starts nothing new and steps until that work is
-    done. A finishing step evaluates a batch of points shared among the open lanes, so a
-    few long tours do not cost a full batch per step: the smallest of `finishing_rungs(lanes)`
-    (a quarter of the lanes, at least 64, then quarters of that down to 256) that holds one
-    point per open tour. Restore with a Metropolis small step runs its open tours by
-    speculative steps there (`restore.speculative_steps`: several events of a tour per
-    evaluation batch). The finishing programs are compiled ahead too. Finishing comes
-    on top of the budget: its steps and time are in `finishing_steps`, `finishing_seconds`,
-    `evaluations` and `seconds`.
+    The renderer's programs are compiled ahead of the run (`compile_seconds`, not counted
+    in `seconds`) and kept for the next renders of the same set-up in this process. An
+    `evaluations` budget counts every target evaluation, initialisation included; `seconds`
+    is checked between chunks (the run overshoots by about one step). Open work at the end
+    of the budget (Restore's open tours) is then finished, on top of the budget, in batches
+    shared among the open lanes. Ctrl-C returns the image of the finished chunks
+    (`interrupted=True`).
 
     Arguments:
         target: a PSS target (`restore.render.PSSTarget`).
         renderer: e.g. `MetropolisRestore()`, `PSSMLT()`, `ERPT()`, `UniformSampler()`.
         key: a JAX PRNG key.
-        seconds: wall-time budget (positive).
+        seconds: wall-time budget (positive); with `evaluations` too, the first spent stops the run.
         evaluations: evaluation budget (positive integer).
         num_lanes: parallel lanes (chains, tours or samples per step).
         chunk: steps per jitted call; default about 2^20 evaluations' worth.
@@ -150,17 +131,10 @@ def render(
         on_update: called as `on_update(image, statistics)` after every chunk, with the image
             so far (`(H, W, 3)` float32) and the renderer's statistics record so far (its
             tail diagnostics, computed once at the end, are NaN).
-        checkpoint: a `restore.Checkpoint` or a file name (saved every 60 s): where to save
-            the run (renderer state, float64 host tallies, step and chunk counts, time
-            spent), atomically, every `every_seconds` and/or at the first chunk end after
-            every `every_steps` steps, at the end and on Ctrl-C. If it exists (and
-            `resume`), the render continues
-            from it. Chunk keys follow the chunk count, so with an `evaluations` budget
-            and a fixed `chunk` an interrupted and resumed render is bit-identical to an
-            uninterrupted one; under a time budget the chunk lengths follow the clock, so
-            a resumed render is a valid continuation but not a bit-identical one. A
-            checkpoint of another render (key, renderer, target, lanes, chunk, budget)
-            is refused with a `CheckpointError`.
+        checkpoint: a `restore.Checkpoint` or a file name (saved every 60 s). With an
+            `evaluations` budget and a fixed `chunk`, a resumed render is bit-identical to
+            an uninterrupted one; under a time budget, a valid continuation. A checkpoint of
+            another render is refused with a `CheckpointError`.
 
     Returns:
         A `RenderResult`.
@@ -169,156 +143,210 @@ def render(
         ValueError: on bad budgets, lanes or chunk, a budget smaller than the
             initialisation plus one step, or a target the renderer cannot start on.
     """
-    if not isinstance(renderer, AbstractRenderer):
-        raise TypeError(f"renderer must be a restore.render renderer, got {type(renderer).__name__}")
-    check_target(target, needs_gradient=renderer.uses_gradient)
-    seconds, evaluations = _check_budget(seconds, evaluations)
-    lanes = check_lanes(num_lanes)
-    checkpoint = as_checkpoint(checkpoint)
-    if on_update is not None and not callable(on_update):
-        raise TypeError("on_update must be callable as on_update(image, statistics)")
-    init_cost, step_cost = renderer.init_cost(lanes), renderer.step_cost(lanes)
-    if chunk is None:
-        chunk = max(1, _CHUNK_EVALUATIONS // step_cost)
-    chunk = check_count(chunk, "chunk")
-    if chunk * step_cost > _MAX_CHUNK_EVALUATIONS:
-        raise ValueError(
-            f"chunk x step cost = {chunk * step_cost} evaluations would overflow the int32 tallies; use a smaller chunk"
-        )
-    max_steps = None
-    if evaluations is not None:
-        max_steps = (evaluations - init_cost) // step_cost
-        if max_steps < 1:
+    run = _RenderRun(
+        target, renderer, key=key, seconds=seconds, evaluations=evaluations, num_lanes=num_lanes, chunk=chunk,
+        progress=progress, on_update=on_update, checkpoint=checkpoint,
+    )  # fmt: skip
+    run.advance()
+    run.finish()
+    return run.result()
+
+
+class _RenderRun:
+    """One render: set up (budget, keys, checkpoint, compiled programs, start state), then
+    `advance` through the budget, `finish` the open work, and read the `result`.
+
+    The renderer's `init` and a chunk of `chunk` steps (a `fori_loop`) are compiled once,
+    ahead of the run (`compile_seconds`, not counted in `seconds`), and kept for the next
+    renders of the same set-up in this process (the same target object, an equal renderer,
+    the same lanes: see `_programs`), which then start at once. Between chunks the device
+    tally is added to float64 host totals and zeroed, the progress bar advances, and
+    `on_update(image_so_far, statistics)` is called.
+
+    Budgets: `evaluations` counts every target evaluation, initialisation (bootstrap)
+    included; the run takes the largest whole number of steps that fits, so it stops on the
+    budget exactly when `evaluations - init_cost` is a multiple of the step cost (`num_lanes`
+    for all but `ERPT`, whose step is a round). `seconds` is checked between chunks; near the
+    end the chunk is shortened from the measured time per step, so the run overshoots by at
+    most about one step. With both, the first spent stops the run.
+
+    Finishing: a renderer with open work at the end of the budget (`renderer.finishes`:
+    Restore with `finish_tours`) then starts nothing new and steps until that work is done.
+    A finishing step evaluates a batch of points shared among the open lanes, so a few long
+    tours do not cost a full batch per step: the smallest of `finishing_rungs(lanes)` (a
+    quarter of the lanes, at least 64, then quarters of that down to 256) that holds one
+    point per open tour. Restore with a Metropolis small step runs its open tours by
+    speculative steps there (`restore.speculative_steps`). The finishing programs are
+    compiled ahead too. Finishing comes on top of the budget: its steps and time are in
+    `finishing_steps`, `finishing_seconds`, `evaluations` and `seconds`.
+    """
+
+    def __init__(self, target, renderer, *, key, seconds, evaluations, num_lanes, chunk, progress, on_update, checkpoint):
+        if not isinstance(renderer, AbstractRenderer):
+            raise TypeError(f"renderer must be a restore.render renderer, got {type(renderer).__name__}")
+        check_target(target, needs_gradient=renderer.uses_gradient)
+        seconds, evaluations = _check_budget(seconds, evaluations)
+        lanes = check_lanes(num_lanes)
+        checkpoint = as_checkpoint(checkpoint)
+        if on_update is not None and not callable(on_update):
+            raise TypeError("on_update must be callable as on_update(image, statistics)")
+        init_cost, step_cost = renderer.init_cost(lanes), renderer.step_cost(lanes)
+        if chunk is None:
+            chunk = max(1, _CHUNK_EVALUATIONS // step_cost)
+        chunk = check_count(chunk, "chunk")
+        if chunk * step_cost > _MAX_CHUNK_EVALUATIONS:
             raise ValueError(
-                f"an evaluation budget of {evaluations} does not cover initialisation ({init_cost}) plus one step "
-                f"({step_cost} evaluations with {lanes} lanes)"
+                f"chunk x step cost = {chunk * step_cost} evaluations would overflow the int32 tallies; use a smaller chunk"
             )
+        max_steps = None
+        if evaluations is not None:
+            max_steps = (evaluations - init_cost) // step_cost
+            if max_steps < 1:
+                raise ValueError(
+                    f"an evaluation budget of {evaluations} does not cover initialisation ({init_cost}) plus one step "
+                    f"({step_cost} evaluations with {lanes} lanes)"
+                )
 
-    check_key(key)
-    key_init, key_run = jax.random.split(key)
-    state_shape = jax.eval_shape(lambda k: renderer.init(target, k, lanes), key_init)
-    name = type(renderer).__name__
-    total, unit = (float(evaluations), "evals") if evaluations is not None else (seconds, "s")
-    fingerprint = {
-        "key": key_fingerprint(key),
-        "renderer": repr(renderer),
-        "target": [type(target).__name__, target.dim, list(target.resolution)],
-        "lanes": lanes,
-        "chunk": chunk,
-        "evaluations": evaluations,
-        "seconds": seconds,
-    }
-    state, totals, steps, chunks, spent = None, None, 0, 0, 0.0
-    finishing, finishing_evaluations, finished, finishing_seconds = 0, 0, False, 0.0
-    if checkpoint is not None and checkpoint.resume and os.path.exists(checkpoint.path):  # checked before any compilation
-        tally_like = jax.tree.map(lambda x: np.zeros(x.shape, host_tally_dtype(x)), state_shape.tally)
-        (state, totals), header = load_checkpoint(checkpoint.path, (state_shape, tally_like), fingerprint)
-        state = jax.tree.map(jnp.asarray, state)
-        steps, chunks, spent = header["steps"], header["chunks"], header["seconds_spent"]
-        finishing, finished = header.get("finishing_steps", 0), header.get("finished", False)
-        finishing_evaluations = header.get("finishing_evaluations", 0)
-        finishing_seconds = header.get("finishing_seconds", 0.0)
-    done = (max_steps is not None and steps >= max_steps) or (seconds is not None and spent >= seconds)
+        check_key(key)
+        key_init, key_run = jax.random.split(key)
+        state_shape = jax.eval_shape(lambda k: renderer.init(target, k, lanes), key_init)
+        self.fingerprint = {
+            "key": key_fingerprint(key),
+            "renderer": repr(renderer),
+            "target": [type(target).__name__, target.dim, list(target.resolution)],
+            "lanes": lanes,
+            "chunk": chunk,
+            "evaluations": evaluations,
+            "seconds": seconds,
+        }
+        state, totals, steps, chunks, spent = None, None, 0, 0, 0.0
+        finishing, finishing_evaluations, finished, finishing_seconds = 0, 0, False, 0.0
+        if checkpoint is not None and checkpoint.resume and os.path.exists(checkpoint.path):  # checked before any compilation
+            tally_like = jax.tree.map(lambda x: np.zeros(x.shape, host_tally_dtype(x)), state_shape.tally)
+            (state, totals), header = load_checkpoint(checkpoint.path, (state_shape, tally_like), self.fingerprint)
+            state = jax.tree.map(jnp.asarray, state)
+            steps, chunks, spent = header["steps"], header["chunks"], header["seconds_spent"]
+            finishing, finished = header.get("finishing_steps", 0), header.get("finished", False)
+            finishing_evaluations = header.get("finishing_evaluations", 0)
+            finishing_seconds = header.get("finishing_seconds", 0.0)
+        done = (max_steps is not None and steps >= max_steps) or (seconds is not None and spent >= seconds)
 
-    t0 = time.perf_counter()
-    programs = _programs(renderer, target, lanes, key_init, state_shape)
-    finishes = renderer.finishes and not finished
-    new_init = state is None and programs.init is None
-    new_chunk = not done and programs.chunk is None
-    new_finisher = finishes and programs.finisher is None
-    if new_init:
-        programs.init = jax.jit(lambda k: renderer.init(target, k, lanes)).lower(key_init).compile(compiler_options(renderer=True))
-    init_fn = programs.init
-    # One throwaway call of each newly compiled function, so that a target's own first-call work
-    # (e.g. Dr.Jit recording its kernels for these batch sizes) is paid here, outside the budget.
-    warm_key = jax.random.fold_in(key_init, 1)
-    if new_init or new_chunk or new_finisher:
-        warm_state = init_fn(warm_key) if state is None else state
-    if new_chunk:
-        programs.chunk = _compile_chunk(renderer, target, key_run, state_shape, warm_key, warm_state)
-    if new_finisher:
-        programs.finisher = _finisher(renderer, target, lanes, state_shape, warm_key, warm_state)
-    chunk_fn, finisher = programs.chunk, programs.finisher
-    compile_seconds = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        programs = _programs(renderer, target, lanes, key_init, state_shape)
+        new_init = state is None and programs.init is None
+        new_chunk = not done and programs.chunk is None
+        new_finisher = renderer.finishes and not finished and programs.finisher is None
+        if new_init:
+            programs.init = jax.jit(lambda k: renderer.init(target, k, lanes)).lower(key_init).compile(compiler_options(renderer=True))
+        # One throwaway call of each newly compiled function, so that a target's own first-call work
+        # (e.g. Dr.Jit recording its kernels for these batch sizes) is paid here, outside the budget.
+        warm_key = jax.random.fold_in(key_init, 1)
+        if new_init or new_chunk or new_finisher:
+            warm_state = programs.init(warm_key) if state is None else state
+        if new_chunk:
+            programs.chunk = _compile_chunk(renderer, target, key_run, state_shape, warm_key, warm_state)
+        if new_finisher:
+            programs.finisher = _finisher(renderer, target, lanes, state_shape, warm_key, warm_state)
+        self.compile_seconds = time.perf_counter() - t0
 
-    start = time.perf_counter()
-    if state is None:
-        state = jax.block_until_ready(init_fn(key_init))
-    params = host_params(state.params)
-    renderer.check(params)
-    spent += time.perf_counter() - start  # the initialisation counts against a time budget
+        start = time.perf_counter()
+        if state is None:
+            state = jax.block_until_ready(programs.init(key_init))
+        self.params = host_params(state.params)
+        renderer.check(self.params)
+        spent += time.perf_counter() - start  # the initialisation counts against a time budget
 
-    def advance(n: int) -> int:
-        nonlocal state, totals, chunks
-        advanced = chunk_fn(jax.random.fold_in(key_run, chunks), state, jnp.asarray(n, jnp.int32))
-        drained = host_tally(advanced.tally, totals)  # blocks until the chunk is done
-        state, totals, chunks = zero_tally(advanced), drained, chunks + 1  # committed together
+        self.target, self.renderer, self.lanes, self.chunk, self.max_steps = target, renderer, lanes, chunk, max_steps
+        self.seconds, self.evaluations, self.init_cost, self.step_cost = seconds, evaluations, init_cost, step_cost
+        self.progress, self.on_update, self.checkpoint, self.key_run = progress, on_update, checkpoint, key_run
+        self.chunk_fn, self.finisher = programs.chunk, programs.finisher
+        self.state, self.totals, self.steps, self.chunks, self.spent = state, totals, steps, chunks, spent
+        self.finishing, self.finishing_evaluations, self.finished = finishing, finishing_evaluations, finished
+        self.finishing_seconds, self.interrupted, self.wall = finishing_seconds, False, spent
+
+    def _advance(self, n: int) -> int:
+        advanced = self.chunk_fn(jax.random.fold_in(self.key_run, self.chunks), self.state, jnp.asarray(n, jnp.int32))
+        drained = host_tally(advanced.tally, self.totals)  # blocks until the chunk is done
+        self.state, self.totals, self.chunks = zero_tally(advanced), drained, self.chunks + 1  # committed together
         return n
 
-    def report(steps: int, elapsed: float) -> tuple[float, str]:
-        spent_evaluations = init_cost + steps * step_cost
-        position = spent_evaluations if evaluations is not None else min(elapsed, seconds)
+    def _report(self, steps: int, elapsed: float) -> tuple[float, str]:
+        spent_evaluations = self.init_cost + steps * self.step_cost
+        position = spent_evaluations if self.evaluations is not None else min(elapsed, self.seconds)
         return position, f"{spent_evaluations / max(elapsed, 1e-9):.3g} evals/s"
 
-    def update() -> None:
-        if on_update is not None:
-            image = np.asarray(renderer.image(target, state, totals), np.float32)
-            on_update(image, renderer.statistics(params, totals))
+    def _update(self) -> None:
+        if self.on_update is not None:
+            image = np.asarray(self.renderer.image(self.target, self.state, self.totals), np.float32)
+            self.on_update(image, self.renderer.statistics(self.params, self.totals))
 
-    def save(steps_done: int, elapsed: float) -> None:
+    def _save(self, steps_done: int, elapsed: float) -> None:
         header = dict(
-            fingerprint, steps=steps_done, chunks=chunks, seconds_spent=elapsed, finishing_steps=finishing,
-            finishing_evaluations=finishing_evaluations, finished=finished, finishing_seconds=finishing_seconds,
-        )
-        assert checkpoint is not None  # the driver saves only with a checkpoint
-        save_checkpoint(checkpoint.path, (state, totals), header)
+            self.fingerprint, steps=steps_done, chunks=self.chunks, seconds_spent=elapsed, finishing_steps=self.finishing,
+            finishing_evaluations=self.finishing_evaluations, finished=self.finished, finishing_seconds=self.finishing_seconds,
+        )  # fmt: skip
+        assert self.checkpoint is not None  # the driver saves only with a checkpoint
+        save_checkpoint(self.checkpoint.path, (self.state, self.totals), header)
 
-    outcome = drive(
-        advance,
-        budget=Budget(max_steps, seconds),
-        chunk=chunk,
-        done=steps,
-        spent=spent,
-        meter=Meter(progress, f"render {name}", total, unit, completed=report(steps, spent)[0] if steps else 0),
-        report=report,
-        on_chunk=update,
-        save=save if checkpoint is not None else None,
-        save_every_steps=None if checkpoint is None else checkpoint.every_steps,
-        save_every_seconds=None if checkpoint is None else checkpoint.every_seconds,
-    )
-    if outcome.interrupted and totals is None:
-        raise KeyboardInterrupt  # nothing finished to keep
-    steps, interrupted, wall = outcome.steps, outcome.interrupted, outcome.elapsed
-    if renderer.finishes and not interrupted and not finished:
+    def advance(self) -> None:
+        """Run chunks until the budget is spent or Ctrl-C (`_driver.drive`)."""
+        checkpoint = self.checkpoint
+        total, unit = (float(self.evaluations), "evals") if self.evaluations is not None else (self.seconds, "s")
+        outcome = drive(
+            self._advance,
+            budget=Budget(self.max_steps, self.seconds),
+            chunk=self.chunk,
+            done=self.steps,
+            spent=self.spent,
+            meter=Meter(self.progress, f"render {type(self.renderer).__name__}", total, unit,
+                        completed=self._report(self.steps, self.spent)[0] if self.steps else 0),
+            report=self._report,
+            on_chunk=self._update,
+            save=self._save if checkpoint is not None else None,
+            save_every_steps=None if checkpoint is None else checkpoint.every_steps,
+            save_every_seconds=None if checkpoint is None else checkpoint.every_seconds,
+        )  # fmt: skip
+        if outcome.interrupted and self.totals is None:
+            raise KeyboardInterrupt  # nothing finished to keep
+        self.steps, self.interrupted, self.wall = outcome.steps, outcome.interrupted, outcome.elapsed
+
+    def finish(self) -> None:
+        """Complete the open work after the budget (a renderer that `finishes`), and save the finished run."""
+        if not self.renderer.finishes or self.interrupted or self.finished:
+            return
         # `state` stays the one at the end of the budget: the checkpoint keeps it, with the
         # totals, as the start of finishing (or, once done, with `finished` set)
-        (totals, chunks, taken, taken_evaluations, seconds_taken), interrupted = _finish(
-            renderer, finisher, state, totals, key_run, chunks, chunk, progress, lanes, step_cost
+        (self.totals, self.chunks, taken, taken_evaluations, seconds_taken), self.interrupted = _finish(
+            self.renderer, self.finisher, self.state, self.totals, self.key_run, self.chunks, self.chunk, self.progress,
+            self.lanes, self.step_cost,
+        )  # fmt: skip
+        self.finishing, self.finishing_evaluations = self.finishing + taken, self.finishing_evaluations + taken_evaluations
+        self.wall += seconds_taken
+        self.finishing_seconds += seconds_taken
+        if not self.interrupted:
+            self.finished = True
+            self._update()
+            if self.checkpoint is not None:
+                self._save(self.steps, self.wall)
+
+    def result(self) -> RenderResult:
+        """The image, the budget spent and the renderer's statistics (with its tail warning)."""
+        image = np.asarray(self.renderer.image(self.target, self.state, self.totals), np.float32)
+        statistics = self.renderer.statistics(self.params, self.totals, self.state)
+        if not self.interrupted:
+            self.renderer.warn_tail(statistics)
+        return RenderResult(
+            image=image,
+            evaluations=self.init_cost + self.steps * self.step_cost + self.finishing_evaluations,
+            seconds=self.wall,
+            compile_seconds=self.compile_seconds,
+            steps=self.steps,
+            num_lanes=self.lanes,
+            statistics=statistics,
+            interrupted=self.interrupted,
+            finishing_steps=self.finishing,
+            finishing_seconds=self.finishing_seconds,
         )
-        finishing, finishing_evaluations = finishing + taken, finishing_evaluations + taken_evaluations
-        wall += seconds_taken
-        finishing_seconds += seconds_taken
-        if not interrupted:
-            finished = True
-            update()
-            if checkpoint is not None:
-                save(steps, wall)
-    image = np.asarray(renderer.image(target, state, totals), np.float32)
-    statistics = renderer.statistics(params, totals, state)
-    if not interrupted:
-        renderer.warn_tail(statistics)
-    return RenderResult(
-        image=image,
-        evaluations=init_cost + steps * step_cost + finishing_evaluations,
-        seconds=wall,
-        compile_seconds=compile_seconds,
-        steps=steps,
-        num_lanes=lanes,
-        statistics=statistics,
-        interrupted=interrupted,
-        finishing_steps=finishing,
-        finishing_seconds=finishing_seconds,
-    )
 
 
 @dataclasses.dataclass
