@@ -25,10 +25,12 @@ import logging
 import threading
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, cast
 
 import jax
 import numpy as np
+
+from ._compile import Lowerable
 
 logger = logging.getLogger("restore")
 
@@ -81,7 +83,8 @@ def wait_lowered(ahead: Ahead | None) -> None:
 def _compile(program: Callable, arguments: Callable[[], tuple], lowered: threading.Event, after: Ahead | None) -> bool:
     try:
         wait_lowered(after)
-        compiling = program.lower(*arguments())  # type: ignore[attr-defined]
+        # the programs compiled ahead are built by `restore._compile.jit` or `jit_chunk`, which give them `.lower`
+        compiling = cast(Lowerable, program).lower(*arguments())
         lowered.set()
         compiling.compile()
         return True

@@ -30,7 +30,7 @@ import functools
 import os
 import threading
 from collections.abc import Callable
-from typing import Any
+from typing import Any, Protocol, cast
 
 import equinox as eqx
 import jax
@@ -38,6 +38,15 @@ import numpy as np
 
 #: XLA's backend optimisation level for restore's programs on the CPU.
 CPU_OPTIMIZATION_LEVEL = 1
+
+
+class Lowerable(Protocol):
+    """A program built by `jit` or `jit_chunk`: callable, with `.lower(*args)`, which lowers
+    it for `args` (to compile it ahead)."""
+
+    lower: Callable[..., Any]
+
+    def __call__(self, *args: Any, **kwargs: Any) -> Any: ...
 
 
 #: The XLA option that selects the CPU kernel emitters (see the module's docstring).
@@ -96,7 +105,8 @@ def jit(fun: Callable | None = None, *, filtered: bool = False, once: bool = Fal
     def call(*args, **kw):
         return (built[0] if built else build())(*args, **kw)
 
-    call.lower = lambda *args, **kw: build().lower(*args, **kw)  # type: ignore[attr-defined]
+    # a function object takes any attribute; the cast names the one it is given here
+    cast(Lowerable, call).lower = lambda *args, **kw: build().lower(*args, **kw)
     return call
 
 
@@ -130,7 +140,7 @@ def jit_chunk(fun: Callable) -> Callable:
     def call(chunk, carry):
         return (built[0] if built else build())(*_split(chunk), carry)
 
-    call.lower = lambda chunk, carry: build().lower(*_split(chunk), carry)  # type: ignore[attr-defined]
+    cast(Lowerable, call).lower = lambda chunk, carry: build().lower(*_split(chunk), carry)  # as in `jit`
     return call
 
 
