@@ -108,7 +108,7 @@ class Jump(AbstractJumpDynamics):
         self.rate = check_positive(rate, "rate")
 
     @property
-    def uses_gradient(self) -> bool:  # type: ignore[override]
+    def uses_gradient(self) -> bool:  # type: ignore[override]  # the ClassVar is never set, so a property may replace it
         return self.kernel.uses_gradient
 
     def check_dim(self, dim: int) -> None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import final
+from typing import Protocol, cast, final
 
 import equinox as eqx
 import jax
@@ -15,6 +15,12 @@ from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 from .._validation import as_float_array, check_point, is_concrete
 from ..regeneration import AbstractRegeneration
 from ._base import AbstractTransfer
+
+
+class _WithDensity(Protocol):
+    """A transfer that has a transition density (not every `AbstractTransfer` does)."""
+
+    def log_transition_density(self, exit_position: Float[Array, " d"], position: Float[Array, " d"]) -> Float[Array, ""]: ...
 
 
 @final
@@ -85,7 +91,7 @@ class TransferMixture(AbstractTransfer):
         self.reference = reference
 
     @property
-    def is_independent(self) -> bool:  # type: ignore[override]
+    def is_independent(self) -> bool:  # type: ignore[override]  # the ClassVar is never set, so a property may replace it
         """True only if every component ignores the exit point."""
         return all(c.is_independent for c in self.components)
 
@@ -116,5 +122,6 @@ class TransferMixture(AbstractTransfer):
         missing = [type(c).__name__ for c in self.components if not hasattr(c, "log_transition_density")]
         if missing:
             raise NotImplementedError(f"components {missing} have no transition density, so neither has the mixture")
-        terms = jnp.stack([c.log_transition_density(exit_position, position) for c in self.components])  # type: ignore[attr-defined]
+        densities = cast(tuple[_WithDensity, ...], self.components)  # none is missing (checked above)
+        terms = jnp.stack([c.log_transition_density(exit_position, position) for c in densities])
         return jax.scipy.special.logsumexp(self.log_weights + terms)
