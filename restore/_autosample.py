@@ -507,7 +507,8 @@ def autosample(
         weights = result.draw_weights.reshape(-1)
         groups = np.broadcast_to(np.arange(result.num_lanes), result.draw_weights.shape).reshape(-1)
 
-    report, fit, u, log_z = best  # type: ignore[misc]
+    assert best is not None  # `max_stages >= 1`, and the first stage sets it
+    report, fit, u, log_z = best
     clock = time.perf_counter()
     sampler, piloted = sampler_for(u, log_z)
     with advising(AUTOSAMPLE_ADVICE):

@@ -426,7 +426,7 @@ class AbstractRestore(AbstractSampler):
         mean duration `T` and local rate `r` (`None` when the tours' length is not known)."""
         if self.tour_length is None:
             return None
-        rates = [d.rate for d in self.dynamics]  # type: ignore[attr-defined]
+        rates = [cast(AbstractJumpDynamics, d).rate for d in self.dynamics]  # jump dynamics: callers ask only when not `is_diffusion`
         return max(1.0 / (1.0 + float(r) * float(t)) for r, t in zip(rates, self.tour_length, strict=True))
 
     def _kill_terms(self, k: int, state: RestoreState):
@@ -564,7 +564,8 @@ class AbstractRestore(AbstractSampler):
         """
         if not self.is_diffusion:
             return state.position
-        return self._by_phase(state.phase, lambda k: self.dynamics[k].advance(key, state.position, duration, self.log_value))  # type: ignore[attr-defined]
+        diffusions = cast(tuple[AbstractDiffusion, ...], self.dynamics)  # `is_diffusion`, and `_setup` made all phases one kind
+        return self._by_phase(state.phase, lambda k: diffusions[k].advance(key, state.position, duration, self.log_value))
 
 
 class Restore(AbstractRestore):
