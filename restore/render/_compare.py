@@ -204,7 +204,11 @@ def compare_renderers(
     for scene_name in scenes:
         scene_key = Path(scene_name).stem
         references[scene_key] = reference = reference_image(scene_name, reference_spp, resolution=resolution, max_depth=max_depth)
-        scene = load_scene(scene_name, resolution, max_depth, log=lambda note, name=scene_key: say(f"{name}: note: {note}"))  # type: ignore[misc]
+
+        def note(text: str, name: str = scene_key) -> None:  # the default binds this scene's name (a closure would see a later one)
+            say(f"{name}: note: {text}")
+
+        scene = load_scene(scene_name, resolution, max_depth, log=note)
         target = PrimarySampleSpace(scene) if technique == "path" else MultiplexedBDPT(scene, max_depth=max_depth)
         throughput[scene_key] = (target.paths_per_second(), native_paths_per_second(scene, max_depth=max_depth))
         for method in methods:

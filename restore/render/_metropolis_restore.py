@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import cast
+
 from ..local import AbstractTorusMutation, TorusMetropolis
 from ._pss import small_step
 from ._restore_renderer import AbstractPSSRestore
@@ -55,4 +57,4 @@ class MetropolisRestore(AbstractPSSRestore):
     def local_kernel(self, target) -> TorusMetropolis:
         """The small step, keeping the target's `frozen_coordinates` (on `MultiplexedBDPT`:
         the depth and strategy, as in MMLT)."""
-        return small_step(self.kernel.mutation, target)  # type: ignore[attr-defined]
+        return small_step(cast(TorusMetropolis, self.kernel).mutation, target)  # `__init__` sets a TorusMetropolis

@@ -11,7 +11,7 @@ Two optional attributes adapt the renderers to multiplexed targets
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import NamedTuple, Protocol, runtime_checkable
+from typing import NamedTuple, Protocol, cast, runtime_checkable
 
 import jax
 import jax.numpy as jnp
@@ -64,6 +64,16 @@ class PSSTarget(Protocol):
         ...
 
 
+class PixelTracingTarget(PSSTarget, Protocol):
+    """A `PSSTarget` with `pixel_from_evaluation`: the tracer finds each point's pixel."""
+
+    def jax_evaluate_with_pixel(
+        self, u: Float[Array, "N D"]
+    ) -> tuple[Float[Array, " N"], Float[Array, "N 3"], Int[Array, " N"]]:
+        """Luminance `(N,)`, RGB `(N, 3)` and the pixel index `(N,)` of a batch."""
+        ...
+
+
 class EvaluatedPixel(NamedTuple):
     """The aux of `pss_logdensity` for a target with `pixel_from_evaluation`: the
     contribution `rgb / lum` and the pixel the tracer found for the point."""
@@ -99,13 +109,14 @@ def check_target(target: object, *, needs_gradient: bool = False) -> None:
             f"this renderer needs gradients of the luminance (jax_evaluate_with_grad), which "
             f"{type(target).__name__} does not offer; use a renderer without gradients (e.g. MetropolisRestore)"
         )
-    dim, res = target.dim, target.resolution  # type: ignore[attr-defined]
+    checked = cast(PSSTarget, target)  # only its members found above are read: dim, resolution, num_pixels
+    dim, res = checked.dim, checked.resolution
     if isinstance(dim, bool) or not isinstance(dim, int) or dim < 2:
         raise ValueError(f"target.dim must be an integer >= 2 (two image coordinates), got {dim!r}")
     if not (isinstance(res, tuple) and len(res) == 2 and all(isinstance(r, int) and r >= 1 for r in res)):
         raise ValueError(f"target.resolution must be a pair of positive integers (W, H), got {res!r}")
-    if target.num_pixels != res[0] * res[1]:  # type: ignore[attr-defined]
-        raise ValueError(f"target.num_pixels is {target.num_pixels}, but W * H = {res[0] * res[1]}")  # type: ignore[attr-defined]
+    if checked.num_pixels != res[0] * res[1]:
+        raise ValueError(f"target.num_pixels is {checked.num_pixels}, but W * H = {res[0] * res[1]}")
     frozen = frozen_coordinates(target)
     if isinstance(frozen, bool) or not isinstance(frozen, int) or not 0 <= frozen < dim:
         raise ValueError(f"target.frozen_coordinates must be an integer in [0, dim), got {frozen!r}")
@@ -136,9 +147,10 @@ def pss_logdensity(target: PSSTarget) -> Callable[[Array], tuple[Array, Array | 
         return jnp.where(good, jnp.log(safe), -jnp.inf), contribution
 
     if pixel_from_evaluation(target):
+        tracer = cast(PixelTracingTarget, target)  # a target that says so offers `jax_evaluate_with_pixel` (`PSSTarget`)
 
         def with_pixel(u: Array) -> tuple[Array, EvaluatedPixel]:
-            lum, rgb, pixel = target.jax_evaluate_with_pixel(jnp.asarray(u, jnp.float32)[None])  # type: ignore[attr-defined]
+            lum, rgb, pixel = tracer.jax_evaluate_with_pixel(jnp.asarray(u, jnp.float32)[None])
             value, contribution = clean(lum[0], rgb[0])
             return value, EvaluatedPixel(contribution, jnp.asarray(pixel[0], jnp.int32))
 

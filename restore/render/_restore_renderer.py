@@ -335,11 +335,11 @@ class AbstractPSSRestore(AbstractRenderer):
         return self.rate is None or self.start == "stationary"
 
     @property
-    def finishes(self) -> bool:  # type: ignore[override]
+    def finishes(self) -> bool:  # type: ignore[override]  # the ClassVar is never set, so a property may replace it
         return self.finish_tours
 
     @property
-    def uses_gradient(self) -> bool:  # type: ignore[override]
+    def uses_gradient(self) -> bool:  # type: ignore[override]  # the ClassVar is never set, so a property may replace it
         return self.kernel.uses_gradient
 
     def init_cost(self, lanes: int) -> int:
