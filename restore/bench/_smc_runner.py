@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -16,7 +16,7 @@ from ._timing import Stopwatch
 
 class _Loop(NamedTuple):
     key: Array
-    state: object  # blackjax TemperedSMCState
+    state: Any  # blackjax's TemperedSMCState (blackjax has no type information)
     log_z: Array
     temperatures: Array
     step_size: Array
@@ -110,7 +110,7 @@ class TemperedSMCRunner(EvidenceRunner):
                 )
 
             def going(c: _Loop) -> Array:
-                return (c.state.tempering_param < 1.0) & (c.temperatures < cap)  # type: ignore[attr-defined]
+                return (c.state.tempering_param < 1.0) & (c.temperatures < cap)
 
             variance = jnp.var(particles, axis=0)
             init = _Loop(

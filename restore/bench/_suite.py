@@ -145,8 +145,8 @@ def _run_all(config: SuiteConfig, rows: list[dict], raw_rates: dict[str, float],
                         ref_run = used.get((runner.matches, f)) if runner.matches else None
                         amount = ref_run.evaluations if ref_run is not None else f * config.full_evaluations
                         budgets.append(Budget.evaluations(amount, f))
-                    if runner.time_budget and (runner.matches, 1.0) in used:
-                        budgets.append(Budget.seconds(used[(runner.matches, 1.0)].run_time, 1.0))  # type: ignore[index]
+                    if runner.time_budget and runner.matches is not None and (runner.matches, 1.0) in used:
+                        budgets.append(Budget.seconds(used[(runner.matches, 1.0)].run_time, 1.0))
                     for budget in budgets:
                         describe(f"{name} seed {seed}: {runner.name} ({budget.kind} x{budget.fraction:g})")
                         out = runner.run(problem, start, _key(config, name, seed, runner.name, budget.kind, budget.fraction), budget)

@@ -36,7 +36,7 @@ class BlackJAXKernel(AbstractLocalKernel):
     """
 
     build: Callable[[Callable], Any] = eqx.field(static=True)
-    uses_gradient: bool = eqx.field(static=True)  # type: ignore[misc]
+    uses_gradient: bool = eqx.field(static=True)  # type: ignore[misc]  # read only on instances: a field may replace the ClassVar
 
     def __init__(self, build: Callable[[Callable], Any], uses_gradient: bool = False):
         try:
