@@ -68,3 +68,20 @@ def test_bad_checkpoint_settings_are_rejected():
         restore.Checkpoint("render.ckpt", every_seconds=0)
     with pytest.raises(TypeError, match="checkpoint must be a restore.Checkpoint or a file name"):
         render(TARGET, MetropolisRestore(), checkpoint=0.5, **BUDGET)
+
+
+def test_a_render_saves_every_so_many_steps(tmp_path):
+    """`Checkpoint(every_steps=...)`: a save at the end of the first chunk at or after every multiple."""
+    checkpoint, seen = tmp_path / "render.ckpt", []
+
+    def on_update(image, statistics):  # called before the chunk's own save: sees the one before
+        seen.append(read_header(checkpoint)["steps"] if checkpoint.exists() else None)
+
+    budget = {**BUDGET, "chunk": 10}
+    result = render(TARGET, PSSMLT(), on_update=on_update, checkpoint=restore.Checkpoint(checkpoint, every_steps=30, every_seconds=None), **budget)
+    assert seen[:4] == [None, None, None, 30] and result.steps > 60
+    assert {s for s in seen if s is not None} == set(range(30, result.steps, 30)) - {result.steps}
+    assert read_header(checkpoint)["steps"] == result.steps  # and the finished run at the end
+    timed = tmp_path / "timed.ckpt"
+    render(TARGET, PSSMLT(), on_update=lambda *_: seen.append(timed.exists()), checkpoint=timed, **budget)
+    assert not any(seen[-3:])  # every 60 s only: no save within this short render but the last
