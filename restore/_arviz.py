@@ -105,7 +105,7 @@ def to_arviz(
     import arviz as az
 
     if draws.shape[0] == 0:
-        raise ValueError("no draws were stored: pass max_draws > 0 (or thin) to restore.sample")
+        raise ValueError("no draws were stored: pass save=restore.SaveDraws(max_draws > 0) to restore.sample")
     draws = np.swapaxes(np.asarray(draws), 0, 1)  # (lane, draw, d)
     weights = np.swapaxes(np.asarray(draw_weights, np.float64), 0, 1)
     kind = RESAMPLED if resample else WEIGHTED

@@ -48,7 +48,7 @@ def merge_results(results: Sequence[SampleResult]) -> SampleResult:
         if other.draws.shape[0] != first.draws.shape[0]:
             raise ValueError(
                 f"result {i} stored {other.draws.shape[0]} draws per lane, result 0 stored {first.draws.shape[0]}: "
-                "the thinning followed each part's draws budget; pass the same thin= to every part"
+                "the thinning followed each part's draws budget; pass the same SaveDraws(thin=...) to every part"
             )
     concat = lambda *parts: np.concatenate(parts, axis=0)
     sums = LaneSums._make(concat(*(np.asarray(getattr(r.sums, f)) for r in results)) for f in LaneSums._fields)

@@ -383,7 +383,7 @@ class SampleResult:
         JAX). The standard error treats lanes as independent replicates.
         """
         if self.draws.shape[0] == 0:
-            raise ValueError("no draws were stored: pass max_draws > 0 (or thin) to restore.sample")
+            raise ValueError("no draws were stored: pass save=restore.SaveDraws(max_draws > 0) to restore.sample")
         self.note_thinning()
         values = np.asarray(fn(self.draws), np.float64)
         if values.shape[:2] != self.draws.shape[:2]:
@@ -501,7 +501,7 @@ class SampleResult:
 
 
 class ThinnedDrawsWarning(UserWarning):
-    """The draws a user works on were thinned to the draws budget (`max_draws`)."""
+    """The draws a user works on were thinned to the draws budget (`SaveDraws(max_draws=...)`)."""
 
 
 def _warn_unreliable(what: str, estimate: Estimate, advice: str) -> None:

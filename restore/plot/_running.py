@@ -41,7 +41,7 @@ def running_estimate_values(result, observable: Observable) -> Running:
     """
     result = run_of(result)
     if result.draws.shape[0] == 0:
-        raise ValueError("no draws were stored: pass max_draws > 0 (or thin) to restore.sample")
+        raise ValueError("no draws were stored: pass save=restore.SaveDraws(max_draws > 0) to restore.sample")
     values = draw_values(result, observable)
     if values.shape[:2] != result.draws.shape[:2]:
         raise ValueError(f"fn must keep the leading (draw, lane) axes {result.draws.shape[:2]}, got {values.shape}")

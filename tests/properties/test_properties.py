@@ -60,6 +60,7 @@ def assert_names(error: BaseException, *names: str) -> None:
     """The error is a ValueError/TypeError and its message names one of `names`."""
     assert isinstance(error, (ValueError, TypeError)), repr(error)
     message = str(error)
+    assert "unexpected keyword argument" not in message, message  # a misspelt argument is no check of its value
     assert any(name in message for name in names), f"{names} not in: {message}"
 
 
@@ -210,8 +211,11 @@ class Probe(restore.AbstractSampler):
 def sample_outcome(**kwargs):
     """What `restore.sample(Probe(), ...)` does with `kwargs`: `(None, error)` for a clear
     refusal, `("accepted", None)` if the run started."""
+    draws = {name: kwargs.pop(name) for name in ("max_draws", "thin") if name in kwargs}  # options of SaveDraws
     arguments = {"num_lanes": LANES, "num_steps": STEPS, "progress": False, **kwargs}
     try:
+        if draws:
+            arguments["save"] = restore.SaveDraws(**draws)
         restore.sample(Probe(), KEY, **arguments)
     except Accepted:
         return "accepted", None

@@ -73,7 +73,7 @@ def test_k_hat_limit():
 
 
 def _run(regeneration, lanes=64, steps=400, key=1, **kwargs):
-    kwargs.setdefault("max_draws", 0)  # no draws: runs of any length share one compiled program
+    kwargs.setdefault("save", restore.SaveDraws(0))  # no draws: runs of any length share one compiled program
     logdensity = lambda x: -0.5 * jnp.sum(x**2)  # noqa: E731
     sampler = restore.JumpRestore(logdensity, restore.local.RandomWalk(0.8), regeneration, tour_length=4.0)
     with warnings.catch_warnings():
