@@ -429,7 +429,7 @@ class AbstractRestore(AbstractSampler):
         rates = [cast(AbstractJumpDynamics, d).rate for d in self.dynamics]  # jump dynamics: callers ask only when not `is_diffusion`
         return max(1.0 / (1.0 + float(r) * float(t)) for r, t in zip(rates, self.tour_length, strict=True))
 
-    def _kill_terms(self, k: int, state: RestoreState):
+    def _event_rates(self, k: int, state: RestoreState):
         """`log gamma` (the total kill rate), the negative-rate flag and `log r` of phase `k`."""
         dynamics = cast(AbstractJumpDynamics, self.dynamics[k])
         log_r = jnp.log(jnp.asarray(dynamics.rate, state.logdensity.dtype))
@@ -439,7 +439,7 @@ class AbstractRestore(AbstractSampler):
 
     def _killed(self, k: int, key: PRNGKeyArray, state: RestoreState) -> Array:
         """Whether the event is a kill (against a local move), decided as the step decides it."""
-        log_gamma, _, log_r = self._kill_terms(k, state)
+        log_gamma, _, log_r = self._event_rates(k, state)
         dtype = state.logdensity.dtype
         return jump_event(log_uniform(key, dtype), jnp.ones((), dtype), log_gamma, log_r).killed
 
@@ -450,7 +450,7 @@ class AbstractRestore(AbstractSampler):
     def _jump_step(self, k: int, keys: _JumpKeys, state: RestoreState, log_rates: Array, killed=None, fresh=None):
         dynamics = cast(AbstractJumpDynamics, self.dynamics[k])
         dtype = state.logdensity.dtype
-        log_gamma, negative, log_r = self._kill_terms(k, state)
+        log_gamma, negative, log_r = self._event_rates(k, state)
         event = jump_event(log_uniform(keys.event, dtype), jax.random.exponential(keys.hold, dtype=dtype), log_gamma, log_r)
         if killed is None:
             killed = event.killed

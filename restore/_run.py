@@ -260,6 +260,7 @@ class Run:
         wait(ahead[1])
 
         self.sampler, self.observe, self.sharding, self.plan = sampler, observe, sharding, plan
+        self.thin = jnp.asarray(plan.thin, jnp.int32)  # on the device once, not per chunk
         self.num_lanes, self.num_steps, self.num_chunks, self.weights = num_lanes, num_steps, num_chunks, weights
         self.lane_keys, self.rao_blackwell, self.progress, self.finish_tours = lane_keys, rao_blackwell, progress, finish_tours
         self.checkpoint = checkpoint
@@ -303,9 +304,8 @@ class Run:
         self.session_start = time.perf_counter()
 
     def _chunk(self, length, finishing: bool, width: int = 0) -> Chunk:
-        thin = jnp.asarray(self.plan.thin, jnp.int32)
         return Chunk(
-            self.sampler, self.observe, self.lane_keys, jnp.asarray(length, jnp.int32), jnp.asarray(finishing), thin,
+            self.sampler, self.observe, self.lane_keys, jnp.asarray(length, jnp.int32), jnp.asarray(finishing), self.thin,
             self.rao_blackwell, self.sharding, width,
         )  # fmt: skip
 
