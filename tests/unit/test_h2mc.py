@@ -1,0 +1,98 @@
+"""H2MC's proposal: the Gaussian of Hessian-Hamiltonian dynamics against a numerical integration of
+those dynamics, its density against SciPy's, its draws against its moments, and its input checks.
+(Its invariance, with a negative control, is tested on the analytic image: tests/integration/test_render.py.)"""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy import integrate, stats
+
+from restore import Point
+from restore.local import TorusH2MC, h2mc_gaussian
+
+
+def flow(lam: float, g: float, momentum: float, time: float) -> float:
+    """Position after `time` of `x'' = g + lam x` from `x = 0`, `x' = momentum`, integrated by SciPy."""
+    solution = integrate.solve_ivp(lambda t, y: [y[1], g + lam * y[0]], (0.0, time), [0.0, momentum], rtol=1e-11, atol=1e-13)
+    return float(solution.y[0, -1])
+
+
+def dynamics_gaussian(lam: float, g: float, angle: float) -> tuple[float, float]:
+    """Mean and variance of the move along one eigen-direction, from the flow itself: the flow
+    is affine in the momentum, so two integrations give both. Curved directions run for the
+    time that turns the angle (`sqrt|lam| t = angle`), flat ones for `angle`."""
+    time = angle / math.sqrt(abs(lam)) if lam != 0 else angle
+    mean = flow(lam, g, 0.0, time)
+    return mean, (flow(lam, g, 1.0, time) - mean) ** 2
+
+
+@pytest.mark.parametrize("angle", [math.pi / 2, 1.0])
+def test_the_gaussian_is_the_flow_of_the_quadratic_model_times_the_prior(angle):
+    """A Hessian with a peak (-40), a valley (+9) and a flat direction (0) under a rotation: per
+    direction, the dynamics' Gaussian times `N(0, sigma^2)` (precisions add, means weighted)."""
+    rotation, _ = np.linalg.qr(np.random.default_rng(0).standard_normal((3, 3)))
+    lam, g = np.array([-40.0, 9.0, 0.0]), np.array([1.5, -2.0, 0.7])
+    sigma = 0.3
+    gaussian = h2mc_gaussian(jnp.asarray(rotation @ g), jnp.asarray(rotation @ np.diag(lam) @ rotation.T), sigma, angle)
+    mean, covariance = np.zeros(3), np.zeros((3, 3))
+    for i in range(3):
+        m, v = dynamics_gaussian(lam[i], g[i], angle)
+        precision = 1 / v + 1 / sigma**2
+        mean += rotation[:, i] * (m / v) / precision
+        covariance += np.outer(rotation[:, i], rotation[:, i]) / precision
+    basis = np.asarray(gaussian.basis)
+    np.testing.assert_allclose(basis @ np.asarray(gaussian.mean), mean, rtol=1e-7, atol=1e-10)
+    np.testing.assert_allclose(basis @ np.diag(1 / np.asarray(gaussian.precision)) @ basis.T, covariance, rtol=1e-7, atol=1e-12)
+
+
+def test_density_and_draws_agree_with_the_gaussian_they_describe():
+    rng = np.random.default_rng(1)
+    a = rng.standard_normal((4, 4))
+    gaussian = h2mc_gaussian(jnp.asarray(rng.standard_normal(4)), jnp.asarray(-(a @ a.T) - np.eye(4)), 0.5)
+    basis, precision = np.asarray(gaussian.basis), np.asarray(gaussian.precision)
+    mean, covariance = basis @ np.asarray(gaussian.mean), basis @ np.diag(1 / precision) @ basis.T
+    moves = rng.standard_normal((5, 4))
+    constant = 2 * math.log(2 * math.pi)  # the d log(2 pi) / 2 the density leaves out, d = 4
+    expected = stats.multivariate_normal(mean, covariance).logpdf(moves) + constant
+    np.testing.assert_allclose(np.asarray(jax.vmap(gaussian.log_density)(jnp.asarray(moves))), expected, rtol=1e-10)
+    draws = np.asarray(jax.vmap(gaussian.sample)(jax.random.split(jax.random.key(0), 40_000)))
+    np.testing.assert_allclose(draws.mean(0), mean, atol=4 * np.sqrt(np.diag(covariance).max() / 40_000))
+    np.testing.assert_allclose(np.cov(draws.T), covariance, atol=0.03 * np.abs(covariance).max())
+
+
+def test_a_gradient_or_hessian_that_is_not_finite_gives_the_prior():
+    for grad, hessian in [(jnp.array([jnp.nan, 1.0]), -jnp.eye(2)), (jnp.ones(2), jnp.array([[jnp.inf, 0.0], [0.0, -1.0]]))]:
+        gaussian = h2mc_gaussian(grad, hessian, 0.02)
+        np.testing.assert_allclose(np.asarray(gaussian.mean), 0.0)
+        np.testing.assert_allclose(np.asarray(gaussian.precision), 1 / 0.02**2)
+
+
+def test_the_kernel_builds_its_hessian_from_gradients_and_keeps_moves_within_sigma():
+    """On `log f = -|A (u - c)|^2 / 2` (Hessian `-A^T A`) the differences give the Hessian to
+    the step's accuracy, and moves stay on the torus, a few sigma from the mean move."""
+    a = jnp.array([[30.0, 5.0], [0.0, 10.0]])
+    centre = jnp.array([0.5, 0.5])
+    logdensity = lambda u: -0.5 * jnp.sum((a @ (u - centre)) ** 2)  # noqa: E731
+    kernel = TorusH2MC(0.02, difference=1e-5)
+    u = jnp.array([0.52, 0.47])
+    point = Point(u, logdensity(u), jax.grad(logdensity)(u), None)
+    built = kernel.gaussian(jax.grad(logdensity), u, point.grad)
+    exact = h2mc_gaussian(point.grad, -(a.T @ a), 0.02)
+    covariance = lambda g: g.basis @ jnp.diag(1 / g.precision) @ g.basis.T  # noqa: E731
+    np.testing.assert_allclose(np.asarray(covariance(built)), np.asarray(covariance(exact)), rtol=1e-4)
+    np.testing.assert_allclose(np.asarray(built.basis @ built.mean), np.asarray(exact.basis @ exact.mean), rtol=1e-4)
+    moves, log_ratios = jax.vmap(lambda k: kernel.propose(k, point, logdensity))(jax.random.split(jax.random.key(2), 2000))
+    assert np.all((np.asarray(moves) >= 0) & (np.asarray(moves) < 1)) and np.all(np.isfinite(np.asarray(log_ratios)))
+    assert np.abs(np.asarray(moves) - np.asarray(u + exact.basis @ exact.mean)).max() < 6 * 0.02
+
+
+def test_the_kernel_refuses_bad_settings_and_a_missing_log_density():
+    for kwargs, match in [({"sigma": 0.2}, "sigma"), ({"sigma": 0.0}, "sigma"), ({"angle": 4.0}, "angle"), ({"difference": 0.5}, "difference")]:
+        with pytest.raises(ValueError, match=match):
+            TorusH2MC(**kwargs)
+    point = Point(jnp.array([0.2, 0.3]), jnp.array(0.0), jnp.zeros(2), None)
+    with pytest.raises(ValueError, match="needs the log density"):
+        TorusH2MC().propose(jax.random.key(0), point, None)
