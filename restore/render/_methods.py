@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
-from ..local import AbstractTorusMutation, KelemenMutation
+from ..local import AbstractTorusMutation, KelemenMutation, TorusH2MC, TorusMALA
 from ._erpt import ERPT
+from ._h2mc_restore import H2MCRestore
 from ._mala_restore import MALARestore
 from ._metropolis_restore import MetropolisRestore
 from ._pssmlt import PSSMLT
@@ -11,8 +12,8 @@ from ._renderer import AbstractRenderer
 from ._uniform import UniformSampler
 
 #: `path` is Mitsuba's own integrator; the others run on the primary-sample-space target.
-METHODS = ("path", "uniform", "pssmlt", "restore", "mala-restore", "erpt")
-GRADIENT_METHODS = ("mala-restore",)
+METHODS = ("path", "uniform", "pssmlt", "restore", "mala", "mala-restore", "h2mc", "h2mc-restore", "erpt")
+GRADIENT_METHODS = ("mala", "mala-restore", "h2mc", "h2mc-restore")
 
 
 #: Faithful defaults: Restore's mean tour length and PSSMLT's large-step probability as the
@@ -44,8 +45,11 @@ def make_renderer(
 ) -> AbstractRenderer:
     """The PSS renderer called `method`.
 
-    All share `mutation` (default `KelemenMutation()`) as small step and a uniform draw
-    as large step. Each method keeps its own exploration setting: a Restore tour makes
+    The Metropolis methods share `mutation` (default `KelemenMutation()`) as small step
+    and a uniform draw as large step; `mala` and `mala-restore` move by `TorusMALA(step_size)`,
+    `h2mc` and `h2mc-restore` by `TorusH2MC()` (its authors' settings), and `mala` and
+    `h2mc` are PSSMLT with that small step (its large steps and `p_large`, as their authors
+    run them). Each method keeps its own exploration setting: a Restore tour makes
     `tour_length` local moves on average (complete tours), PSSMLT takes a large step with
     probability `p_large`, ERPT chains are `chain_length` mutations long.
 
@@ -59,8 +63,14 @@ def make_renderer(
         return PSSMLT(mutation, p_large=p_large)
     if method == "restore":
         return MetropolisRestore(mutation, tour_length=tour_length)
+    if method == "mala":
+        return PSSMLT(TorusMALA(step_size), p_large=p_large)
     if method == "mala-restore":
         return MALARestore(step_size=step_size, tour_length=tour_length)
+    if method == "h2mc":
+        return PSSMLT(TorusH2MC(), p_large=p_large)
+    if method == "h2mc-restore":
+        return H2MCRestore(tour_length=tour_length)
     if method == "erpt":
         return ERPT(mutation, chain_length=chain_length)
     if method == "path":

@@ -13,9 +13,18 @@ from jaxtyping import Array, Float, Int, PRNGKeyArray
 
 from .._pareto import pareto_k, tail_length
 from .._point import Point
-from ..local import AbstractTorusMutation, KelemenMutation
+from ..local import AbstractLocalKernel, AbstractTorusMutation, KelemenMutation, TorusMetropolis, metropolis_accept
 from ._film import empty_film, splat
-from ._pss import check_target, contributions, evaluate_points, luminance, pixels, small_step
+from ._pss import (
+    check_target,
+    contributions,
+    evaluate_points,
+    frozen_coordinates,
+    luminance,
+    pixels,
+    pss_logdensity,
+    small_step,
+)
 from ._renderer import (
     TAIL_WARNING,
     AbstractRenderer,
@@ -107,7 +116,11 @@ class PSSMLT(AbstractRenderer):
     Proposal: with probability `p_large` a uniform draw (large step), else the small step
     (which keeps the target's `frozen_coordinates`: on `MultiplexedBDPT` this is MMLT);
     both are symmetric, so the acceptance is `a = min(1, lum' / lum)`: the core's
-    `restore.local.TorusMetropolis` kernel decides both. Each step
+    `restore.local.TorusMetropolis` kernel decides both. The small step may instead be a
+    local kernel with its own Hastings test (`restore.local.TorusMALA`, Luan et al.'s
+    MALA; `restore.local.TorusH2MC`, Li et al.'s H2MC), which then decides the small
+    steps while the large steps keep `min(1, lum' / lum)`: each of the two is invariant,
+    so their mixture is. Each step
     evaluates the target once per lane and splats the current state with weight `1 - a`
     and the proposal with weight `a` (expected-value splatting: the weights are the
     expectation of the next state's indicator, so `E[splat] = E[h(u_next)]`).
@@ -130,24 +143,31 @@ class PSSMLT(AbstractRenderer):
     The default `p_large = 0.3` is Kelemen et al.'s, the value PSSMLT is usually run with.
 
     Arguments:
-        mutation: the small step (default `KelemenMutation()`).
+        mutation: the small step: a symmetric torus mutation (default `KelemenMutation()`)
+            or a local kernel on the torus (`TorusMALA`, `TorusH2MC`; not on targets with
+            frozen coordinates).
         p_large: probability of a large step, in `(0, 1]`.
         n_bootstrap: uniform draws for `Z_hat` and the chains' starts.
     """
 
     tail_statistic: ClassVar[str | None] = "z_k_hat"
 
-    mutation: AbstractTorusMutation
+    mutation: AbstractTorusMutation | AbstractLocalKernel
     p_large: float
     n_bootstrap: int
 
     def __init__(
-        self, mutation: AbstractTorusMutation | None = None, *, p_large: float = 0.3, n_bootstrap: int = 65536
+        self,
+        mutation: AbstractTorusMutation | AbstractLocalKernel | None = None,
+        *,
+        p_large: float = 0.3,
+        n_bootstrap: int = 65536,
     ):
         mutation = KelemenMutation() if mutation is None else mutation
-        if not isinstance(mutation, AbstractTorusMutation):
+        if not isinstance(mutation, (AbstractTorusMutation, AbstractLocalKernel)):
             raise TypeError(
-                f"mutation must be a torus mutation (e.g. KelemenMutation()), got {type(mutation).__name__}"
+                "mutation must be a torus mutation (e.g. KelemenMutation()) or a local kernel on the torus "
+                f"(e.g. TorusMALA()), got {type(mutation).__name__}"
             )
         p_large = float(p_large)
         if not (math.isfinite(p_large) and 0 < p_large <= 1):
@@ -156,6 +176,22 @@ class PSSMLT(AbstractRenderer):
         self.p_large = p_large
         self.n_bootstrap = check_count(n_bootstrap, "n_bootstrap", 2)
 
+    @property
+    def uses_gradient(self) -> bool:  # type: ignore[override]  # the ClassVar is never set, so a property may replace it
+        return isinstance(self.mutation, AbstractLocalKernel) and self.mutation.uses_gradient
+
+    def small_step(self, target) -> AbstractLocalKernel:
+        """The small step's kernel on `target`: Metropolis with the mutation (keeping the
+        target's frozen coordinates), or the local kernel given, which moves every coordinate."""
+        if isinstance(self.mutation, AbstractTorusMutation):
+            return small_step(self.mutation, target)
+        if frozen_coordinates(target):
+            raise ValueError(
+                f"{type(self.mutation).__name__} moves every coordinate, but {type(target).__name__} declares "
+                f"frozen_coordinates = {frozen_coordinates(target)} that small steps must keep"
+            )
+        return self.mutation
+
     def init_cost(self, lanes: int) -> int:
         return bootstrap_size(self.n_bootstrap, lanes)
 
@@ -163,10 +199,11 @@ class PSSMLT(AbstractRenderer):
         return lanes
 
     def init(self, target, key: PRNGKeyArray, lanes: int) -> PSSMLTState:
-        check_target(target)
+        check_target(target, needs_gradient=self.uses_gradient)
+        self.small_step(target)  # refuses a target whose frozen coordinates the kernel would move
         lanes = check_lanes(lanes)
         k_boot, k_pick = jax.random.split(key)
-        boot = bootstrap_points(target, k_boot, self.n_bootstrap, lanes)
+        boot = bootstrap_points(target, k_boot, self.n_bootstrap, lanes, self.uses_gradient)
         lum = luminance(boot)
         z = jnp.mean(lum)
         z_err = jnp.std(lum) / (z * math.sqrt(lum.shape[0]))
@@ -189,12 +226,19 @@ class PSSMLT(AbstractRenderer):
         k_small, k_large, k_kind, k_accept = jax.random.split(key, 4)
         x, tally = state.point, state.tally
         n, d = x.position.shape
-        kernel = small_step(self.mutation, target)
-        small = jax.vmap(lambda k, p: kernel.propose(k, p, None)[0])(lane_keys(k_small, n), x)
+        kernel = self.small_step(target)
+        logdensity = lambda u: pss_logdensity(target)(u)[0]  # noqa: E731
+        small, aux = jax.vmap(lambda k, p: kernel.propose(k, p, logdensity))(lane_keys(k_small, n), x)
         fresh = jax.random.uniform(k_large, (n * d,), jnp.float32).reshape(n, d)
         large = jax.random.uniform(k_kind, (n,), jnp.float32) < self.p_large
-        y = evaluate_points(target, jnp.where(large[:, None], fresh, small))
-        moved, info = jax.vmap(lambda k, p, q: kernel.accept(k, p, q, None))(lane_keys(k_accept, n), x, y)
+        y = evaluate_points(target, jnp.where(large[:, None], fresh, small), self.uses_gradient)
+        accept_keys = lane_keys(k_accept, n)
+        moved, info = jax.vmap(kernel.accept)(accept_keys, x, y, aux)
+        if not isinstance(kernel, TorusMetropolis):  # large steps: Metropolis on the luminance
+            symmetric = lambda k, p, q: metropolis_accept(k, p, q, q.logdensity - p.logdensity)  # noqa: E731
+            jumped, jump_info = jax.vmap(symmetric)(accept_keys, x, y)
+            pick = lambda a, b: jnp.where(large.reshape((-1,) + (1,) * (a.ndim - 1)), a, b)  # noqa: E731
+            moved, info = jax.tree.map(pick, jumped, moved), jax.tree.map(pick, jump_info, info)
         a, accept = info.acceptance_probability, info.accepted
         both = lambda p, q: jnp.concatenate([p, q])  # noqa: E731
         film = splat(

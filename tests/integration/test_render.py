@@ -15,7 +15,7 @@ import pytest
 from scipy import stats
 
 import restore.render as rr
-from restore.local import KelemenMutation, TorusMALA, WrappedGaussianMutation, metropolis_accept
+from restore.local import KelemenMutation, TorusH2MC, TorusMALA, WrappedGaussianMutation, metropolis_accept
 from restore.regeneration import AbstractRegeneration
 from restore.render._driver import _programs
 from restore.render._renderer import host_params, host_tally
@@ -68,7 +68,10 @@ def relative_error(images, exact=EXACT):
 RENDERERS = {  # (renderer, lanes, steps): a few million evaluations over the R realisations
     "metropolis_restore": (lambda: rr.MetropolisRestore(n_bootstrap=16384), 128, 640),  # complete tours, L = 1
     "mala_restore": (lambda: rr.MALARestore(2e-4, n_bootstrap=16384), 128, 320),
+    "h2mc_restore": (lambda: rr.H2MCRestore(n_bootstrap=16384), 128, 320),
     "pssmlt": (lambda: rr.PSSMLT(n_bootstrap=16384), 128, 640),
+    "mala": (lambda: rr.PSSMLT(TorusMALA(2e-4), n_bootstrap=16384), 128, 640),
+    "h2mc": (lambda: rr.PSSMLT(TorusH2MC(), n_bootstrap=16384), 128, 320),
     "erpt": (lambda: rr.ERPT(chain_length=16), 128, 32),
     "uniform": (lambda: rr.UniformSampler(), 256, 320),
 }
@@ -222,28 +225,51 @@ class UncorrectedMALA(TorusMALA):
         return metropolis_accept(key, point, candidate, candidate.logdensity - point.logdensity)
 
 
-@pytest.mark.parametrize("kernel, passes", [(TorusMALA(0.01), True), (UncorrectedMALA(0.01), False)])
-def test_wrapped_mala_kernel_leaves_the_luminance_invariant(kernel, passes):
-    """From exact draws, 30 MALA steps with a step (sqrt(2h) = 0.14) large enough to wrap
-    around the torus must keep the pixel histogram on the exact luminance-per-pixel law."""
-    n = 8192
-    logdensity = rr.pss_logdensity(TARGET)
+class H2MCWithoutReverse(TorusH2MC):
+    """Negative control: H2MC accepted on the luminance alone, the reverse move's Gaussian left out."""
+
+    def accept(self, key, point, candidate, aux):
+        return metropolis_accept(key, point, candidate, candidate.logdensity - point.logdensity)
+
+
+def pixel_law_p_value(kernel, n=8192, moves=30):
+    """From exact draws, `moves` moves of `kernel` on every point; the chi-squared p-value of
+    the final pixel histogram against the exact luminance-per-pixel law."""
+    logdensity = lambda u: rr.pss_logdensity(TARGET)(u)[0]  # noqa: E731
 
     @jax.jit
     def final_pixels(key):
         def step(i, x):
             k_move, k_accept = jax.random.split(jax.random.fold_in(key, i))
             keys_move, keys_accept = jax.random.split(k_move, n), jax.random.split(k_accept, n)
-            moves = jax.vmap(lambda k, p: kernel.propose(k, p, logdensity)[0])(keys_move, x)
-            y = rr.evaluate_points(TARGET, moves, with_grad=True)
-            return jax.vmap(lambda k, p, q: kernel.accept(k, p, q, None)[0])(keys_accept, x, y)
+            candidates, aux = jax.vmap(lambda k, p: kernel.propose(k, p, logdensity))(keys_move, x)
+            y = rr.evaluate_points(TARGET, candidates, with_grad=True)
+            return jax.vmap(lambda k, p, q, a: kernel.accept(k, p, q, a)[0])(keys_accept, x, y, aux)
 
         start = rr.evaluate_points(TARGET, TARGET.sample(jax.random.fold_in(key, 10**6), n), with_grad=True)
-        return TARGET.pixel_index(jax.lax.fori_loop(0, 30, step, start).position)
+        return TARGET.pixel_index(jax.lax.fori_loop(0, moves, step, start).position)
 
     counts = np.bincount(np.asarray(final_pixels(jax.random.key(0))), minlength=64)
     expected = n * (EXACT @ [0.2126, 0.7152, 0.0722]).ravel() / (64 * TARGET.Z)
-    p_value = stats.chi2.sf(np.sum((counts - expected) ** 2 / expected), df=63)
+    return stats.chi2.sf(np.sum((counts - expected) ** 2 / expected), df=63)
+
+
+@pytest.mark.parametrize("kernel, passes", [(TorusMALA(0.01), True), (UncorrectedMALA(0.01), False)])
+def test_wrapped_mala_kernel_leaves_the_luminance_invariant(kernel, passes):
+    """30 MALA moves with a step (sqrt(2h) = 0.14) large enough to wrap around the torus
+    must keep exact draws on the exact luminance-per-pixel law."""
+    p_value = pixel_law_p_value(kernel)
+    assert (p_value > ALPHA) if passes else (p_value < 1e-10), p_value
+
+
+@pytest.mark.parametrize(
+    "kernel, passes",
+    [(TorusH2MC(0.05), True), (TorusH2MC(0.01), True), (H2MCWithoutReverse(0.05), False), (H2MCWithoutReverse(0.01), False)],
+)
+def test_h2mc_kernel_leaves_the_luminance_invariant(kernel, passes):
+    """30 H2MC moves, at its authors' bound (sigma = 0.01) and at the largest one allowed,
+    must keep exact draws on the exact law; without the reverse move's Gaussian they must not."""
+    p_value = pixel_law_p_value(kernel)
     assert (p_value > ALPHA) if passes else (p_value < 1e-10), p_value
 
 
