@@ -85,8 +85,9 @@ class RenderComparison:
         return self.mean_metric(scene, method) * self.mean_seconds(scene, method)
 
     def ratios(self) -> list[tuple[str, str, float, str]]:
-        """`(ratio, scene, value, goal)` rows: throughput, Restore / PSSMLT and Restore / path tracing
-        (relative MSE x seconds, see `work_normalised`)."""
+        """`(ratio, scene, value, goal)` rows: throughput, Restore / PSSMLT and Restore / path tracing,
+        and each gradient Restore variant / its counterpart, where both ran (relative MSE x
+        seconds, see `work_normalised`)."""
         rows = []
         for scene in self.scenes:
             if scene in self.throughput:
@@ -99,7 +100,15 @@ class RenderComparison:
                 if math.isfinite(value):
                     name = mlt if other == "pssmlt" else other
                     rows.append((f"relative MSE x time, Metropolis Restore / {name}", scene, value, goal))
+            for variant, counterpart, label in GRADIENT_PAIRS:
+                value = self.work_normalised(scene, variant) / self.work_normalised(scene, counterpart)
+                if math.isfinite(value):
+                    rows.append((f"relative MSE x time, {label}", scene, value, "<= 0.8"))
         return rows
+
+
+#: The Restore variants of the gradient methods and their counterparts, as the Restore paper pairs them.
+GRADIENT_PAIRS = (("mala-restore", "mala", "MALA Restore / MALA"), ("h2mc-restore", "h2mc", "H2MC Restore / H2MC"))
 
 
 def _metrics(image: np.ndarray, reference: np.ndarray) -> dict[str, float]:

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from restore.render import ERPTStatistics, PSSMLTStatistics, RenderResult, RestoreStatistics, UniformStatistics
+from restore.render._compare import MethodRun, RenderComparison
 from restore.render._methods import make_renderer
 from restore.render._renderer import TAIL_WARNING
 from restore.render._summary import native_rows, reliability, render_rows
@@ -60,3 +61,16 @@ def test_mitsubas_path_tracer_reports_its_samples_per_pixel():
     rows = dict(native_rows(spp=16, pixels=64, seconds=0.5, scene_seconds=0.1))
     assert rows["paths"] == "1,024 (16 spp)" and rows["paths/s"] == "2,048"
     assert rows["time"] == "0.1 s scene, 0.5 s render"
+
+
+def test_the_comparison_pairs_each_gradient_restore_variant_with_its_counterpart():
+    """Relative MSE x seconds of MALA Restore / MALA and H2MC Restore / H2MC, where both ran."""
+
+    def run(method, mse, seconds):
+        return MethodRun("door", method, 0, np.zeros((1, 1, 3)), seconds, 1, {"relative_mse": mse}, [])
+
+    runs = [run("mala", 0.004, 10.0), run("mala-restore", 0.002, 16.0), run("h2mc", 0.05, 10.0)]
+    comparison = RenderComparison(("door",), ("mala", "mala-restore", "h2mc"), 10.0, 1, (8, 8), 5, {}, runs, {}, {})
+    rows = {name: (value, goal) for name, _, value, goal in comparison.ratios()}
+    assert rows["relative MSE x time, MALA Restore / MALA"] == (pytest.approx(0.8), "<= 0.8")
+    assert not any("H2MC" in name for name in rows)  # H2MC Restore did not run
