@@ -27,7 +27,10 @@ class Estimate(NamedTuple):
 
     Attributes:
         value: the estimate (the observable's shape).
-        standard_error: its standard error (same shape).
+        standard_error: its standard error (same shape). Tour-based ones count the squares
+            of their largest terms at the size the fitted tail expects, where that is more
+            than they sum to, in proportion to how one-sided those terms are (a Pareto-smoothed
+            variance: `restore._tails.signed_square_excess`).
         k_hat: the tail shape of each component (same shape; NaN where not assessed).
         k_limit: the largest `k_hat` at which the error bar is trusted (depends on how many
             terms there are; NaN where no diagnostic was computed).
@@ -127,6 +130,15 @@ def tour_ratio(sum_f, sum_f2, sum_ft, sum_t, sum_t2, num_tours) -> Estimate:
     value = F / T
     ss = np.maximum(F2 - 2.0 * value * FT + value**2 * T2, 0.0)
     return Estimate(value, np.sqrt(ss * n / (n - 1.0)) / T)
+
+
+def with_tail_excess(estimate: Estimate, excess: np.ndarray, num_tours: float, total_time: float) -> Estimate:
+    """`estimate` (from `tour_ratio`) with the squares of its largest residuals counted at
+    their fitted tail's expected size: `excess` (per component, `signed_square_excess`) is
+    added to the residuals' sum of squares (a Pareto-smoothed standard error)."""
+    n = float(num_tours)
+    extra = np.asarray(excess, np.float64).reshape(np.shape(estimate.standard_error)) * n / (n - 1.0) / total_time**2
+    return estimate._replace(standard_error=np.sqrt(np.asarray(estimate.standard_error) ** 2 + extra))
 
 
 def lane_ratio(all_f, all_t) -> Estimate:

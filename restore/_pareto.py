@@ -110,6 +110,41 @@ def pareto_k(largest: np.ndarray, n: int) -> float:
     return gpd_shape(exceedances)
 
 
+def tail_square_excess(largest: np.ndarray, n: int) -> float:
+    """How far the squares of the largest of `n` terms fall short of what their fitted tail expects.
+
+    A central-limit standard error sums the terms' squares. With a heavy tail (`0 < k < 1/2`)
+    the squares of the largest terms usually sum to less than their expectation, which the
+    rare, larger terms make up for: the standard error is then too small, most of all in the
+    runs that met none of those terms, whose estimates are also the most wrong (they miss the
+    terms that would have pulled them up). This fits the GPD to the top of the sample as
+    `pareto_k` does (shape `k`, scale `sigma`, above the next value `u`) and returns
+    `max(0, M E[(u + Y)^2] - (sum of the M squares))`, with
+    `E[(u + Y)^2] = u^2 + 2 u sigma / (1 - k) + 2 sigma^2 / ((1 - k)(1 - 2k))`: added to the
+    sum of squares, it counts the tail's terms at their expected size (a Pareto-smoothed
+    variance). It is 0 where no tail can be fitted, and where `k >= 1/2` (there the variance
+    is infinite and `k_hat` marks the estimate unreliable anyway).
+
+    Arguments:
+        largest: the largest absolute values of the sample, any order (as for `pareto_k`).
+        n: the size of the whole sample.
+    """
+    top = np.sort(np.asarray(largest, np.float64).reshape(-1))[::-1]
+    top = top[np.isfinite(top)]
+    if n < MIN_TERMS or top.size < 6:
+        return 0.0
+    top = top[: tail_length(n) + 1]
+    threshold, above = top[-1], top[:-1]
+    exceedances = above - threshold
+    if np.count_nonzero(exceedances > 0) < 5:
+        return 0.0
+    k, sigma = gpd_fit(exceedances[exceedances > 0])
+    if not (k < 0.5 and sigma > 0):
+        return 0.0
+    expected = threshold**2 + 2 * threshold * sigma / (1 - k) + 2 * sigma**2 / ((1 - k) * (1 - 2 * k))
+    return max(0.0, float(above.size * expected - np.sum(above**2)))
+
+
 def pareto_k_log(log_largest: np.ndarray, n: int) -> float:
     """`pareto_k` of `exp(log_largest)`, computed without overflow (for importance weights)."""
     log_top = np.asarray(log_largest, np.float64).reshape(-1)

@@ -23,12 +23,21 @@ from ._estimates import (
     log_mean_exp,
     tour_ratio,
     unreliable_reason,
+    with_tail_excess,
 )
 from ._estimates_table import estimates_table
 from ._observables import Observables
 from ._pareto import k_hat_limit
 from ._sampler import AbstractSampler
-from ._tails import TourTails, duration_k, importance_k, residual_k, select_lanes
+from ._tails import (
+    TourTails,
+    duration_k,
+    duration_square_excess,
+    importance_k,
+    residual_k,
+    residual_square_excess,
+    select_lanes,
+)
 from ._trace import RunTrace
 from ._warnings import SAMPLE_ADVICE, advice, warn
 
@@ -213,7 +222,10 @@ class SampleResult:
             est = tour_ratio(pick(s.sum_f)[:, cut], pick(s.sum_f2)[:, cut], pick(s.sum_ft)[:, cut], pick(s.sum_t), pick(s.sum_t2), pick(s.num_tours))
             n = int(np.sum(pick(s.num_tours)))
             tails = _kept(self.tails) if lanes is None else select_lanes(_kept(self.tails), lanes, self.num_lanes)
-            k_hat = np.array([residual_k(tails, slot.start + j, float(v), n) for j, v in enumerate(est.value.reshape(-1))])
+            values = list(enumerate(est.value.reshape(-1).tolist()))
+            k_hat = np.array([residual_k(tails, slot.start + j, v, n) for j, v in values])
+            excess = np.array([residual_square_excess(tails, slot.start + j, v, n) for j, v in values])
+            est = with_tail_excess(est, excess, n, float(np.sum(pick(s.sum_t), dtype=np.float64)))
             if lanes is not None:
                 k_hat = np.fmax(k_hat, np.ravel(self._run_shape(name, lambda: self.estimate(name, method))))
             est = est._replace(k_hat=k_hat, k_limit=k_hat_limit(n), caveat=self._open_tours_caveat(lanes))
@@ -273,7 +285,8 @@ class SampleResult:
                 log_z = np.asarray(math.log(float(ratio.value)))
                 rel_se, k_hat, k_limit = float(ratio.standard_error / ratio.value), ratio.k_hat, ratio.k_limit
             elif self.is_regenerative:
-                sd = math.sqrt(max(T2 / n - mean**2, 0.0) * n / (n - 1))
+                excess = duration_square_excess(_kept(tails), int(n), mean)  # see `tail_square_excess`
+                sd = math.sqrt((max(T2 / n - mean**2, 0.0) * n + excess) / (n - 1))
                 rel_se = sd / (mean * math.sqrt(n))
                 k_hat, k_limit = duration_k(_kept(tails), int(n)), k_hat_limit(n)
                 if lanes is not None:

@@ -35,7 +35,7 @@ from jaxtyping import Array, Bool, Float
 
 from ._exceedances import Exceedances, Largest, init_exceedances, largest, merge
 from ._exceedances import select_lanes as select_rows
-from ._pareto import pareto_k, pareto_k_log, tail_length
+from ._pareto import pareto_k, pareto_k_log, tail_length, tail_square_excess
 
 #: The buffer has about this many rows per lane (so that groups of lanes have tails of their own)...
 ROWS_PER_LANE = 64
@@ -125,6 +125,40 @@ def duration_k(tails: TourTails, num_tours: int) -> float:
 def importance_k(tails: TourTails, num_starts: int) -> float:
     """`k_hat` of the importance weights at tour starts."""
     return pareto_k_log(_finite(tails.column(tails.rows.shape[1] - 1, SCORING)), num_starts)
+
+
+def signed_square_excess(terms: np.ndarray, num_tours: int) -> float:
+    """`tail_square_excess` of the largest `|terms|`, times the skew of their squares:
+    `|sum sign(t) t^2| / sum t^2` over the `tail_length` largest.
+
+    What the excess corrects is one-sided: a run that met none of a heavy tail's rare terms
+    misses them on one side, so its estimate is off towards the other side by as much as its
+    error bar is too short. Where the largest terms fall on both sides alike (a symmetric
+    tail) those misses cancel, and the plain standard error holds (the t statistic of a
+    symmetric sum errs on the safe side, Efron 1969): the excess is scaled away.
+    """
+    terms = np.asarray(terms, np.float64)
+    terms = terms[np.isfinite(terms)]
+    top = terms[np.argsort(-np.abs(terms))[: tail_length(num_tours)]]
+    squares = float(np.sum(top**2))
+    if not squares > 0:
+        return 0.0
+    skew = abs(float(np.sum(np.sign(top) * top**2))) / squares
+    return skew * tail_square_excess(np.abs(terms), num_tours)
+
+
+def duration_square_excess(tails: TourTails, num_tours: int, mean: float) -> float:
+    """`signed_square_excess` of the deviations `T - mean` of the longest tours."""
+    return signed_square_excess(longest_durations(tails) - mean, num_tours)
+
+
+def residual_square_excess(tails: TourTails, column: int, value: float, num_tours: int) -> float:
+    """`signed_square_excess` of the largest residuals `F_j - value * T` of component `column`
+    among the tours the buffer holds (every tour above the buffer's thresholds)."""
+    if tails.rows.shape[1] <= 2 + column:
+        return 0.0
+    tour = tails.rows[:, 0] > 0  # rows of a start alone hold no tour
+    return signed_square_excess(tails.rows[tour, 1 + column] - value * tails.rows[tour, 0], num_tours)
 
 
 def residual_k(tails: TourTails, column: int, value: float, num_tours: int) -> float:

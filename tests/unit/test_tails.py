@@ -10,8 +10,8 @@ import pytest
 
 import restore
 import restore._tails
-from restore._pareto import k_hat_limit, pareto_k, pareto_k_log, tail_length
-from restore._tails import duration_k, importance_k, residual_k, select_lanes
+from restore._pareto import k_hat_limit, pareto_k, pareto_k_log, tail_length, tail_square_excess
+from restore._tails import duration_k, importance_k, residual_k, select_lanes, signed_square_excess
 from restore.regeneration import Gaussian
 
 
@@ -53,6 +53,47 @@ def test_pareto_k_separates_light_from_infinite_variance_tails():
     assert pareto_k(rng.exponential(size=n), n) < 0.1
     assert 0.6 < pareto_k(rng.pareto(1 / 0.8, size=n), n) < 1.0  # shape 0.8: infinite variance
     assert math.isnan(pareto_k(rng.exponential(size=10), 10))  # too few to fit
+
+
+def _pareto_sample(rng, k: float, n: int) -> np.ndarray:
+    """`n` draws of a generalised Pareto distribution of shape `k` and unit scale (`k = 0`: exponential)."""
+    u = rng.random(n)
+    return -np.log(u) if k == 0 else (u**-k - 1) / k
+
+
+def test_tail_square_excess_makes_up_the_squares_a_heavy_tail_usually_hides():
+    """Over repeated samples of n terms, the squares of the largest sum short of their expectation
+    more often and by more as the tail gets heavier; adding the excess brings the median of
+    (sum of all squares) / (its expectation) close to 1. A light tail gets almost nothing, and no
+    excess is given where the variance is infinite, nor without enough terms to fit."""
+    rng, n = np.random.default_rng(3), 4000
+    ratios = {}
+    for k in (0.0, 0.25, 0.4):
+        expected = n * 2 / ((1 - k) * (1 - 2 * k))  # E[Y^2] of a unit-scale GPD, n times
+        plain, smoothed = [], []
+        for _ in range(200):
+            x = _pareto_sample(rng, k, n)
+            excess = tail_square_excess(np.sort(x)[-200:], n)
+            assert excess >= 0
+            plain.append(np.sum(x**2) / expected)
+            smoothed.append((np.sum(x**2) + excess) / expected)
+        ratios[k] = (np.median(plain), np.median(smoothed))
+    assert ratios[0.0][1] - ratios[0.0][0] < 0.02  # a light tail: nearly nothing added
+    assert ratios[0.4][0] < 0.85 and abs(ratios[0.4][1] - 1) < 0.15, ratios  # the plain sum falls short; smoothed is near 1
+    assert ratios[0.25][0] < ratios[0.25][1] <= 1.1, ratios
+    assert tail_square_excess(_pareto_sample(rng, 0.8, n), n) == 0.0  # infinite variance: k_hat says so
+    assert tail_square_excess(np.arange(5.0), n) == 0.0 and tail_square_excess(np.arange(50.0), 20) == 0.0
+
+
+def test_the_excess_counts_in_proportion_to_how_one_sided_the_tail_is():
+    """A one-sided heavy tail gets the whole excess; the same terms with random signs (a
+    symmetric tail, whose misses cancel) nearly none."""
+    rng, n = np.random.default_rng(4), 4000
+    x = _pareto_sample(rng, 0.4, n)
+    whole = tail_square_excess(x, n)
+    assert whole > 0 and signed_square_excess(x, n) == pytest.approx(whole)
+    symmetric = signed_square_excess(x * rng.choice([-1.0, 1.0], n), n)
+    assert symmetric < 0.3 * whole
 
 
 def test_values_on_a_lattice_keep_their_light_tail():
