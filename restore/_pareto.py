@@ -100,14 +100,26 @@ def pareto_k(largest: np.ndarray, n: int) -> float:
         return math.nan
     if not np.all(np.isfinite(top)):
         raise ValueError("pareto_k needs finite values")
-    top = top[: tail_length(n) + 1]
-    # Values tied with the threshold (durations and integrals on a lattice of holding times)
-    # are not exceedances: zeros would read as a heavy tail.
-    exceedances = top[:-1] - top[-1]
-    exceedances = exceedances[exceedances > 0]
+    exceedances = _exceedances(top, n)
     if exceedances.size < 5:  # a flat top: no tail at all
         return 0.0
     return gpd_shape(exceedances)
+
+
+def _tail_top(top: np.ndarray, n: int) -> tuple[float, np.ndarray]:
+    """The threshold and the values above it that PSIS fits, from values sorted largest first:
+    the `tail_length(n) + 1`-th largest, and the ones before it."""
+    top = top[: tail_length(n) + 1]
+    return float(top[-1]), top[:-1]
+
+
+def _exceedances(top: np.ndarray, n: int) -> np.ndarray:
+    """The positive exceedances over the threshold of `_tail_top`. Values tied with it
+    (durations and integrals on a lattice of holding times) are not exceedances: zeros
+    would read as a heavy tail."""
+    threshold, above = _tail_top(top, n)
+    exceedances = above - threshold
+    return exceedances[exceedances > 0]
 
 
 def tail_square_excess(largest: np.ndarray, n: int) -> float:
@@ -133,12 +145,11 @@ def tail_square_excess(largest: np.ndarray, n: int) -> float:
     top = top[np.isfinite(top)]
     if n < MIN_TERMS or top.size < 6:
         return 0.0
-    top = top[: tail_length(n) + 1]
-    threshold, above = top[-1], top[:-1]
-    exceedances = above - threshold
-    if np.count_nonzero(exceedances > 0) < 5:
+    threshold, above = _tail_top(top, n)
+    exceedances = _exceedances(top, n)
+    if exceedances.size < 5:
         return 0.0
-    k, sigma = gpd_fit(exceedances[exceedances > 0])
+    k, sigma = gpd_fit(exceedances)
     if not (k < 0.5 and sigma > 0):
         return 0.0
     expected = threshold**2 + 2 * threshold * sigma / (1 - k) + 2 * sigma**2 / ((1 - k) * (1 - 2 * k))

@@ -180,7 +180,7 @@ class PSSMLT(AbstractRenderer):
     def uses_gradient(self) -> bool:  # type: ignore[override]  # the ClassVar is never set, so a property may replace it
         return isinstance(self.mutation, AbstractLocalKernel) and self.mutation.uses_gradient
 
-    def small_step(self, target) -> AbstractLocalKernel:
+    def small_step_kernel(self, target) -> AbstractLocalKernel:
         """The small step's kernel on `target`: Metropolis with the mutation (keeping the
         target's frozen coordinates), or the local kernel given, which moves every coordinate."""
         if isinstance(self.mutation, AbstractTorusMutation):
@@ -200,7 +200,7 @@ class PSSMLT(AbstractRenderer):
 
     def init(self, target, key: PRNGKeyArray, lanes: int) -> PSSMLTState:
         check_target(target, needs_gradient=self.uses_gradient)
-        self.small_step(target)  # refuses a target whose frozen coordinates the kernel would move
+        self.small_step_kernel(target)  # refuses a target whose frozen coordinates the kernel would move
         lanes = check_lanes(lanes)
         k_boot, k_pick = jax.random.split(key)
         boot = bootstrap_points(target, k_boot, self.n_bootstrap, lanes, self.uses_gradient)
@@ -226,7 +226,7 @@ class PSSMLT(AbstractRenderer):
         k_small, k_large, k_kind, k_accept = jax.random.split(key, 4)
         x, tally = state.point, state.tally
         n, d = x.position.shape
-        kernel = self.small_step(target)
+        kernel = self.small_step_kernel(target)
         logdensity = lambda u: pss_logdensity(target)(u)[0]  # noqa: E731
         small, aux = jax.vmap(lambda k, p: kernel.propose(k, p, logdensity))(lane_keys(k_small, n), x)
         fresh = jax.random.uniform(k_large, (n * d,), jnp.float32).reshape(n, d)
