@@ -63,6 +63,7 @@ from .regeneration import (
     DiagonalMixture,
     Mixture,
     ProductMixture,
+    RotatedProductMixture,
     StudentT,
     UniformBox,
     choose_regeneration,
@@ -282,6 +283,9 @@ def typical_scale(regeneration: AbstractRegeneration) -> np.ndarray:
     if isinstance(regeneration, ProductMixture):  # (d, K) scales and log weights, one mixture per coordinate
         scales, weights = np.asarray(regeneration.scales), np.exp(np.asarray(regeneration.log_weights))
         return np.array([_weighted_median(s[:, None], w)[0] for s, w in zip(scales, weights, strict=True)])
+    if isinstance(regeneration, RotatedProductMixture):  # x = centre + A^{-1} y: each axis of x mixes the y's
+        within = typical_scale(regeneration.product)
+        return np.sqrt(np.asarray(regeneration.inverse, np.float64) ** 2 @ within**2)
     for name in ("scale_tril",):
         tril = getattr(regeneration, name, None)
         if tril is not None:

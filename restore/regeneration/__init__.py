@@ -12,10 +12,11 @@ regeneration distribution with density `u`. Every distribution here is an
 
 Available: `Gaussian`, `StudentT`, `UniformBox`, `UniformTorus`, `Mixture`,
 `DiagonalMixture` (axis-aligned components, `O(K d)` per evaluation),
-`ProductMixture` (a product of one-dimensional mixtures), and `laplace_mixture`
+`ProductMixture` (a product of one-dimensional mixtures), `RotatedProductMixture`
+(the same along other directions, found by `independent_axes`), and `laplace_mixture`
 (with `find_modes` / `LaplaceModes` / `mixture_from_modes`) which builds a
 mixture of Laplace approximations at the modes of a target found by multi-start
-optimisation. `fit_mixture`, `fit_product` and `choose_regeneration` fit
+optimisation. `fit_mixture`, `fit_product`, `fit_rotated_product` and `choose_regeneration` fit
 regenerations to weighted draws of the target (what `restore.autosample` does
 in stages).
 """
@@ -28,7 +29,10 @@ from ._diagonal_mixture import DiagonalMixture as DiagonalMixture
 from ._fit import Fit as Fit
 from ._fit import fit_mixture as fit_mixture
 from ._fit import fit_product as fit_product
+from ._fit import fit_rotated_product as fit_rotated_product
 from ._gaussian import Gaussian as Gaussian
+from ._independent_axes import IndependentAxes as IndependentAxes
+from ._independent_axes import independent_axes as independent_axes
 from ._laplace import (
     LaplaceModes as LaplaceModes,
 )
@@ -43,6 +47,7 @@ from ._laplace import (
 )
 from ._mixture import Mixture as Mixture
 from ._product_mixture import ProductMixture as ProductMixture
+from ._rotated_product import RotatedProductMixture as RotatedProductMixture
 from ._student_t import StudentT as StudentT
 from ._uniform import UniformBox as UniformBox
 from ._uniform import UniformTorus as UniformTorus
@@ -54,9 +59,11 @@ __all__ = [
     "DiagonalMixture",
     "Fit",
     "Gaussian",
+    "IndependentAxes",
     "LaplaceModes",
     "Mixture",
     "ProductMixture",
+    "RotatedProductMixture",
     "StudentT",
     "UniformBox",
     "UniformTorus",
@@ -64,6 +71,8 @@ __all__ = [
     "find_modes",
     "fit_mixture",
     "fit_product",
+    "fit_rotated_product",
+    "independent_axes",
     "laplace_mixture",
     "mixture_from_modes",
 ]

@@ -11,10 +11,10 @@ candidate within `tolerance` nats of the best wins, and no candidate may cost mo
 `max_cost` multiply-adds per evaluation, since a Restore step evaluates `u` every time.
 
 What the search costs is kept small: products of one-dimensional mixtures are fitted to
-every draw (their EM runs on binned coordinates), mixtures over all coordinates to a
-random subset of `mixture_draws`, the Student-t families only from the size that their
-Gaussian family scored best with, and candidates are scored on at most `mixture_draws`
-held-out draws.
+every draw (their EM runs on binned coordinates; the rotated products' directions are
+found once, from the training draws), mixtures over all coordinates to a random subset of
+`mixture_draws`, the Student-t families only from the size that their Gaussian family
+scored best with, and candidates are scored on at most `mixture_draws` held-out draws.
 """
 
 from __future__ import annotations
@@ -25,10 +25,13 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._fit import Fit, ProductData, fit_binned_product, fit_mixture, product_data
+from ._fit import Fit, ProductData, fit_binned_product, fit_mixture, product_data, rotated
+from ._independent_axes import independent_axes
 
 #: The families tried by default, cheapest first.
-FAMILIES = ("product", "diagonal", "diagonal-t", "full", "full-t")
+FAMILIES = ("product", "diagonal", "diagonal-t", "rotated-product", "full", "full-t")
+#: The families fitted as products of one-dimensional mixtures (on binned coordinates).
+PRODUCTS = ("product", "rotated-product")
 #: Degrees of freedom of the Student-t families.
 STUDENT_DF = 5.0
 #: A fit is padded to the size a run was compiled for (`sizes`) when that is at most this many
@@ -62,10 +65,35 @@ class Choice(NamedTuple):
 SEARCH_ITERATIONS = 30
 
 
-def _fit(family: str, x, w, k: int, seed: int, start: Fit | None = None, binned: ProductData | None = None, iterations: int = 100) -> Fit:
-    """A fit of `family` with `k` components (`start`: a fit to start a mixture's EM from)."""
-    if family == "product":
-        return fit_binned_product(product_data(x, w) if binned is None else binned, k, seed=seed, start=start)
+class _Products(NamedTuple):
+    """The draws as the product families fit them: binned (training draws, all draws) and, for
+    the rotated products, the directions `(centre, A)` found from the training draws."""
+
+    train: ProductData
+    all: ProductData
+    axes: tuple[np.ndarray, np.ndarray] | None = None
+
+
+def _products(x: np.ndarray, w: np.ndarray, test: np.ndarray, axes: tuple[np.ndarray, np.ndarray] | None = None) -> _Products:
+    """Every training draw, and every draw, binned once (after one sort), in the coordinates `axes` gives."""
+    if axes is not None:
+        x = (x - axes[0]) @ axes[1].T
+    order = np.argsort(x, axis=0)
+    kept = (~test)[order]  # (n, d): whether each coordinate's next draw in order is a training draw
+    rank = np.cumsum(~test) - 1  # a draw's index among the training draws
+    train_order = rank[order.T[kept.T].reshape(x.shape[1], -1).T]
+    return _Products(product_data(x[~test], w[~test], train_order), product_data(x, w, order), axes)
+
+
+def _fit(family: str, x, w, k: int, seed: int, start: Fit | None = None, binned: ProductData | None = None, iterations: int = 100,
+         axes: tuple[np.ndarray, np.ndarray] | None = None) -> Fit:  # fmt: skip
+    """A fit of `family` with `k` components (`start`: a fit to start a mixture's EM from;
+    `binned`: the draws binned for a product, in the coordinates of `axes` for a rotated one)."""
+    if family in PRODUCTS:
+        if family == "rotated-product" and (binned is None or axes is None):
+            raise ValueError("a rotated product is fitted to binned draws in its own coordinates")
+        fit = fit_binned_product(product_data(x, w) if binned is None else binned, k, seed=seed, start=start)
+        return fit if axes is None else rotated(fit, *axes)
     covariance = "diagonal" if family.startswith("diagonal") else "full"
     df = STUDENT_DF if family.endswith("-t") else None
     init: dict = {}
@@ -76,6 +104,8 @@ def _fit(family: str, x, w, k: int, seed: int, start: Fit | None = None, binned:
 
 
 def _cost(family: str, k: int, d: int) -> int:
+    if family == "rotated-product":
+        return d * d + k * d
     return k * d * d if family.startswith("full") else k * d
 
 
@@ -101,9 +131,12 @@ def choose_regeneration(
         draws: `(n, d)` weighted draws of the target (e.g. a Restore run's stored draws).
         weights: `(n,)` their weights.
         groups: `(n,)` group labels (lanes, chains); whole groups are held out.
-        families: among `"product"`, `"diagonal"`, `"diagonal-t"`, `"full"`, `"full-t"`.
+        families: among `"product"`, `"diagonal"`, `"diagonal-t"`, `"rotated-product"`
+            (a product along the directions in which the draws are most nearly
+            independent: `RotatedProductMixture`), `"full"`, `"full-t"`.
             A Student-t family is tried from the number of components its Gaussian family
-            scored best with (when that family is tried too), doubling while it improves.
+            scored best with (when that family is tried too), doubling while it improves;
+            so is a rotated product from the product's.
         max_components: the largest number of components tried.
         max_cost: the largest cost (multiply-adds per log density) allowed; default
             `max(4096, 64 d)`.
@@ -158,16 +191,22 @@ def choose_regeneration(
 
     candidates: list[Candidate] = []
     fits: dict[tuple[str, int], Fit] = {}
-    binned = {}
-    if "product" in families:  # every training draw, and every draw, binned once (after one sort)
-        order = np.argsort(x, axis=0)
-        kept = (~test)[order]  # (n, d): whether each coordinate's next draw in order is a training draw
-        rank = np.cumsum(~test) - 1  # a draw's index among the training draws
-        train_order = rank[order.T[kept.T].reshape(x.shape[1], -1).T]
-        binned["train"] = product_data(x[~test], w[~test], train_order)
-        binned["all"] = product_data(x, w, order)
+    products: dict[str, _Products] = {}
+    if "product" in families:
+        products["product"] = _products(x, w, test)
+    if "rotated-product" in families:
+        try:
+            axes = independent_axes(x[~test], w[~test], seed=seed)
+        except (ValueError, np.linalg.LinAlgError):
+            axes = None  # draws that span too few directions
+        # tried unless the plain product has the same structure (or a full covariance has it)
+        if axes is not None and not (axes.along_coordinates() and "product" in families):
+            products["rotated-product"] = _products(x, w, test, (axes.centre, axes.transform))
     for family in families:
-        on = np.flatnonzero(~test) if family == "product" else train
+        if family in PRODUCTS and family not in products:
+            continue
+        on = np.flatnonzero(~test) if family in PRODUCTS else train
+        prepared = products.get(family)
         largest = min(max_components, max(1, on.size // (4 * d + 4)))
         base = _base(family)
         k, start = 1, None
@@ -175,11 +214,14 @@ def choose_regeneration(
             scored_base = [c for c in candidates if c.family == _fit_name(base)]
             if scored_base:
                 k = max(scored_base, key=lambda c: c.score).num_components
-                start = fits.get((base, k))
+                start = fits.get((base, k)) if family.endswith("-t") else None  # (a rotated product fits other coordinates)
         best_here, gain = -math.inf, 0.0
         while k <= largest and _cost(family, k, d) <= max_cost:
             try:
-                fit = _fit(family, x[on], w[on], k, seed, start=start, binned=binned.get("train"), iterations=SEARCH_ITERATIONS)
+                fit = _fit(
+                    family, x[on], w[on], k, seed, start=start, binned=None if prepared is None else prepared.train,
+                    iterations=SEARCH_ITERATIONS, axes=None if prepared is None else prepared.axes,
+                )  # fmt: skip
             except (ValueError, np.linalg.LinAlgError):
                 break
             start = None
@@ -218,8 +260,12 @@ def choose_regeneration(
     family = next(f for f in families if _fit_name(f) == chosen.family)
     k = chosen.num_components
     # Refitted to all the draws it may use, started from the candidate.
-    every = np.arange(x.shape[0]) if family == "product" else _at_most(np.arange(x.shape[0]), mixture_draws, rng)
-    fit = _fit(family, x[every], w[every], k, seed, start=fits[family, k], binned=binned.get("all"))
+    every = np.arange(x.shape[0]) if family in PRODUCTS else _at_most(np.arange(x.shape[0]), mixture_draws, rng)
+    prepared = products.get(family)
+    fit = _fit(
+        family, x[every], w[every], k, seed, start=fits[family, k], binned=None if prepared is None else prepared.all,
+        axes=None if prepared is None else prepared.axes,
+    )  # fmt: skip
     return Choice(fit, tuple(candidates))
 
 
@@ -242,11 +288,14 @@ def _at_most(indices: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarra
 
 
 def _base(family: str) -> str:
-    """The Gaussian family of a family name (`"diagonal-t"` -> `"diagonal"`)."""
-    return family.removesuffix("-t")
+    """The family whose best size a family's search starts from: the Gaussian family of a
+    Student-t one (`"diagonal-t"` -> `"diagonal"`), the product of a rotated product."""
+    return "product" if family == "rotated-product" else family.removesuffix("-t")
 
 
 def _fit_name(family: str) -> str:
     """The `Fit.family` label of a family name."""
+    if family == "rotated-product":
+        return "rotated product"
     base = "diagonal" if family.startswith("diagonal") else "full" if family.startswith("full") else "product"
     return base + (f" student-t(df={STUDENT_DF:g})" if family.endswith("-t") else "")

@@ -11,6 +11,8 @@ covariance positive definite:
   weighted counts, sums and sums of squares, which make the M-step exact for
   responsibilities that are constant within a group), so its cost does not grow with the
   number of draws beyond sorting them.
+- `fit_rotated_product`: the same product along the directions in which the draws are
+  most nearly independent (`independent_axes`).
 
 Weights are normalised to the effective sample size `(sum w)^2 / sum w^2`, so the prior
 counts as a fixed number of pseudo-draws whatever the scale of the weights.
@@ -36,8 +38,10 @@ from threadpoolctl import threadpool_limits
 
 from ._diagonal_mixture import DiagonalMixture, check_df
 from ._gaussian import Gaussian
+from ._independent_axes import independent_axes
 from ._mixture import Mixture
 from ._product_mixture import ProductMixture
+from ._rotated_product import RotatedProductMixture
 from ._student_t import StudentT
 
 Covariance = Literal["full", "diagonal"]
@@ -414,3 +418,32 @@ def _product_fit(mix: np.ndarray, means: np.ndarray, scales: np.ndarray) -> Fit:
         return logsumexp(offset - 0.5 * z**2, axis=1).sum(axis=0)
 
     return Fit(build, log_prob, "product", k, int(k * d), dict(weights=mix, means=means, scales=scales))
+
+
+@single_threaded
+def fit_rotated_product(draws, weights, num_components: int, *, seed: int = 0, iterations: int = 100, tolerance: float = 1e-6) -> Fit:
+    """`fit_product` along the directions in which the draws are most nearly independent:
+    `y = A (x - centre)` from `independent_axes`, a product of one-dimensional mixtures
+    fitted to `y` (a `RotatedProductMixture`)."""
+    x, w = _prepare(draws, weights)
+    centre, transform, _ = independent_axes(x, w, seed=seed)
+    product = fit_product((x - centre) @ transform.T, w, num_components, seed=seed, iterations=iterations, tolerance=tolerance)
+    return rotated(product, centre, transform)
+
+
+def rotated(product: Fit, centre: np.ndarray, transform: np.ndarray) -> Fit:
+    """A product fit to `y = A (x - centre)` (`transform` `A`) as a fit in `x`: a `RotatedProductMixture`."""
+    d, k = int(transform.shape[0]), product.num_components
+    log_det = float(np.linalg.slogdet(transform)[1])
+
+    @functools.cache
+    def build(size: int):
+        inner = product.build(size)
+        assert isinstance(inner, ProductMixture)  # `rotated` is given product fits only
+        return RotatedProductMixture(inner, centre, transform)
+
+    def log_prob(y):
+        return product.log_prob((np.asarray(y, np.float64) - centre) @ transform.T) + log_det
+
+    parameters = dict(product.parameters or {}, centre=centre, transform=transform)
+    return Fit(build, log_prob, "rotated product", k, int(d * d + k * d), parameters)

@@ -16,6 +16,8 @@ from restore.regeneration import (  # noqa: E402
     Gaussian,
     LaplaceModes,
     Mixture,
+    ProductMixture,
+    RotatedProductMixture,
     StudentT,
     UniformBox,
     UniformTorus,
@@ -88,6 +90,9 @@ ALL_DISTS = {
         [Gaussian(MEAN3, COV3), StudentT(-MEAN3, 1.0, 3.0)], [0.3, 0.7]
     ),
     "mixture_same": lambda: Mixture([Gaussian(MEAN3, COV3), Gaussian(-MEAN3, 2.0)]),
+    "rotated_product": lambda: RotatedProductMixture(
+        ProductMixture(np.ones((3, 2)), np.array([[1.0, -1.0], [0.0, 2.0], [0.5, 0.5]]), np.ones((3, 2))), MEAN3, np.linalg.cholesky(COV3).T
+    ),
 }
 
 
