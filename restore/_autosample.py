@@ -23,6 +23,11 @@ target. `autosample` builds `u` in stages, population-Monte-Carlo style:
    looking at those same tours, and early stages are heavy-tailed by design, so they are
    not pooled.
 
+5. **Coverage check.** The final regeneration is checked against the draws of the stage
+   that chose it, which were made with another regeneration: target mass that lies where
+   the final run expects fewer than one tour to start, which no diagnostic of that run can
+   see, marks its estimates unreliable (`coverage_caveat`).
+
 If no stage becomes healthy within `max_stages`, the final run uses the stage with the
 lightest tail, and its estimates carry the diagnostics that say their error bars cannot
 be trusted. It never raises because the target has no mode or too many of them.
@@ -45,6 +50,8 @@ from jaxtyping import Array, ArrayLike, PRNGKeyArray
 
 from ._compile import jit
 from ._coordinates import check_coordinates
+from ._coverage import unseen_mass
+from ._estimates import COVERAGE_REMEDY
 from ._jump_restore import JumpRestore
 from ._options import DEFAULT_DRAWS, Checkpoint, SaveDraws
 from ._pareto import K_HAT_LIMIT
@@ -479,6 +486,7 @@ def autosample(
         stage_save = SaveDraws(min(100_000, num_lanes * 64))
 
     best = None  # (report, fit, regeneration, log Z) of the stage the final run takes (see `preferred`)
+    chosen_from = (draws, weights)  # the draws its regeneration was chosen by
     log_z = None
     for stage in range(1, max_stages + 1):
         clock = time.perf_counter()
@@ -505,6 +513,7 @@ def autosample(
         log_z = _trusted_log_z(result)
         if best is None or preferred(report, best[0]):
             best = (report, choice.fit, u, log_z)
+            chosen_from = (draws, weights)  # drawn with another regeneration: evidence on this one's coverage
         if report.healthy:  # the final run takes this stage's regeneration
             break
         draws = result.draws.reshape(-1, d)
@@ -520,9 +529,69 @@ def autosample(
             sampler, key_final, num_lanes=num_lanes, num_steps=num_steps, observables=observables, progress=progress,
             save=save, checkpoint=checkpoint,
         )  # fmt: skip
-    stages.append(_stage_report(len(stages), "final", fit, result, sampler.pilot_size if piloted else 0, time.perf_counter() - clock))
+    checked = coverage_caveat(logdensity, u, result, *chosen_from)
+    result.caveat = checked.caveat
+    final_report = _stage_report(len(stages), "final", fit, result, sampler.pilot_size if piloted else 0, time.perf_counter() - clock)
+    stages.append(final_report._replace(evaluations=final_report.evaluations + checked.evaluations))
     total = sum(s.evaluations for s in stages)
     return AutoResult(result, sampler, u, stages, total, time.perf_counter() - started, report.healthy)
+
+
+#: At most this many of the draws a regeneration was chosen by are used to check its coverage.
+COVERAGE_DRAWS = 16384
+#: Unseen mass (`restore._coverage.unseen_mass`) above this many standard errors of `log Z`
+#: (and above `COVERAGE_FLOOR`) marks the final run's estimates unreliable.
+COVERAGE_SE = 2.0
+COVERAGE_FLOOR = 1e-3
+
+
+class Coverage(NamedTuple):
+    """The coverage check of the final regeneration: a caveat (`""` when it passes) and the evaluations it took."""
+
+    caveat: str
+    evaluations: int
+
+
+def coverage_caveat(logdensity, regeneration: AbstractRegeneration, result: SampleResult, draws, weights) -> Coverage:
+    """Check the final regeneration against the draws it was chosen by (drawn with another one).
+
+    The final run's estimates miss the mass of any region where the regeneration is so
+    thin that the run expects fewer than one tour to start there (`unseen_mass`); its
+    diagnostics, computed from the tours it ran, cannot show that. The draws of the stage
+    that chose the regeneration (run with the stage before's) can: when they put more than
+    `COVERAGE_SE` standard errors of `log Z` of the target's mass there, the estimates are
+    marked unreliable.
+    """
+    x = np.asarray(draws, np.float64)
+    w = np.asarray(weights, np.float64).reshape(-1)
+    keep = np.flatnonzero(np.isfinite(w) & (w > 0) & np.all(np.isfinite(x), axis=1))
+    if keep.size > COVERAGE_DRAWS:
+        keep = np.sort(np.random.default_rng(0).choice(keep, COVERAGE_DRAWS, replace=False))
+    if keep.size == 0 or not result.has_tours:
+        return Coverage("", 0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        log_z = result.normalising_constant()
+    if not (np.isfinite(float(log_z.value)) and bool(log_z.reliable)):
+        return Coverage("", 0)  # marked already
+    points = jnp.asarray(x[keep], result.draws.dtype)
+    log_p, log_u = _densities(logdensity, regeneration, points)
+    tours = float(np.sum(result.sums.num_tours))
+    mass = unseen_mass(np.asarray(log_p), np.asarray(log_u), w[keep], float(log_z.value), tours)
+    if mass <= max(COVERAGE_SE * float(log_z.standard_error), COVERAGE_FLOOR):
+        return Coverage("", int(keep.size))
+    return Coverage(
+        f"about {mass:.1%} of the target's mass, seen in an earlier stage's draws, lies where the regeneration is so "
+        f"thin that this run's {tours:,.0f} tours expect fewer than one start there, so the estimates miss it "
+        f"(a mode or region the regeneration leaves to its defensive component): {COVERAGE_REMEDY}",
+        int(keep.size),
+    )
+
+
+@jit(filtered=True, once=True)
+def _densities(logdensity, regeneration, points):
+    """`log p` and `log u` at `points` `(n, d)`."""
+    return jax.vmap(logdensity)(points), jax.vmap(regeneration.log_prob)(points)
 
 
 @jit(static_argnums=1, once=True)

@@ -66,6 +66,8 @@ class Estimate(NamedTuple):
 
 #: What `unreliable_reason` advises when there are too few terms (callers add no other advice then).
 FEW_TERMS_REMEDY = "run longer or with more lanes"
+#: What to do about mass the final regeneration of `autosample` leaves unseen (`restore._autosample.coverage_caveat`).
+COVERAGE_REMEDY = "give autosample more lanes or steps (better stages choose a better regeneration), or build one that covers every mode"
 
 
 def unreliable_reason(estimate: Estimate) -> str:

@@ -15,6 +15,7 @@ from ._arviz import CHAINS
 from ._arviz import to_arviz as arviz_export
 from ._diagnostics import TourStatistics, heavy_tail_reasons, tour_statistics
 from ._estimates import (
+    COVERAGE_REMEDY,
     FEW_TERMS_REMEDY,
     Estimate,
     UnreliableEstimateWarning,
@@ -91,6 +92,9 @@ class SampleResult:
         trace: the kill rate and acceptance of each chunk (a `restore.RunTrace`), or `None`.
         advice: what the warnings advise when the regeneration is far from the target
             (it depends on how the run was built: by hand or by `restore.autosample`).
+        caveat: a reason found outside the run why its tour-based error bars cannot be
+            trusted (`restore.autosample`'s check of the regeneration against an earlier
+            stage's draws), or `""`.
     """
 
     sampler_name: str
@@ -118,6 +122,7 @@ class SampleResult:
     expected_tour_times: np.ndarray | None
     trace: RunTrace | None = None
     advice: str = SAMPLE_ADVICE
+    caveat: str = ""
     _thinning_noted: bool = dataclasses.field(default=False, init=False, repr=False)
     _run_shapes: dict[str, np.ndarray] = dataclasses.field(default_factory=dict, init=False, repr=False)  # `_run_shape`
 
@@ -228,7 +233,7 @@ class SampleResult:
             est = with_tail_excess(est, excess, n, float(np.sum(pick(s.sum_t), dtype=np.float64)))
             if lanes is not None:
                 k_hat = np.fmax(k_hat, np.ravel(self._run_shape(name, lambda: self.estimate(name, method))))
-            est = est._replace(k_hat=k_hat, k_limit=k_hat_limit(n), caveat=self._open_tours_caveat(lanes))
+            est = est._replace(k_hat=k_hat, k_limit=k_hat_limit(n), caveat=self._caveat(lanes))
         else:
             est = lane_ratio(pick(s.all_f)[:, cut], pick(s.all_t))
         shape = lambda a: np.reshape(a, slot.shape)  # noqa: E731
@@ -294,7 +299,7 @@ class SampleResult:
             else:
                 lane_est = lane_ratio(s.sum_t, s.num_tours)
                 rel_se, k_hat, k_limit = float(lane_est.standard_error) / mean, lane_est.k_hat, lane_est.k_limit
-            est = LogEstimate(log_z, np.asarray(rel_se), np.asarray(k_hat), k_limit, self._open_tours_caveat(lanes))
+            est = LogEstimate(log_z, np.asarray(rel_se), np.asarray(k_hat), k_limit, self._caveat(lanes))
         elif method == "importance":
             starts = float(np.sum(s.num_iw))
             log_iw, se = log_mean_exp(s.log_iw_sum, s.log_iw_sum2, starts)
@@ -317,6 +322,10 @@ class SampleResult:
                 warnings.simplefilter("ignore", UnreliableEstimateWarning)
                 self._run_shapes[key] = np.asarray(whole_run().k_hat, np.float64)
         return self._run_shapes[key]
+
+    def _caveat(self, lanes=None) -> str:
+        """Why the tour-based error bars cannot be trusted, whatever their tail fit says (`""`: no reason)."""
+        return "; ".join(reason for reason in (self._open_tours_caveat(lanes), self.caveat) if reason)
 
     def _open_tours_caveat(self, lanes=None) -> str:
         """Tours still running at the end were left out: their (long) time is missing from the tours."""
@@ -522,5 +531,5 @@ def _warn_unreliable(what: str, estimate: Estimate, advice: str) -> None:
     if np.all(estimate.reliable):
         return
     reason = unreliable_reason(estimate)
-    remedy = "" if reason.endswith(FEW_TERMS_REMEDY) else f"; {advice}"  # the reason may say what to do itself
+    remedy = "" if reason.endswith((FEW_TERMS_REMEDY, COVERAGE_REMEDY)) else f"; {advice}"  # the reason may say what to do itself
     warn(f"{what}: the standard error cannot be trusted: {reason}{remedy}", UnreliableEstimateWarning)

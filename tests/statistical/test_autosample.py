@@ -212,18 +212,24 @@ def _rotated_run(families):
 def test_a_rotated_many_well_gets_an_answer():
     """A 12-d Many Well (64 modes) under a random rotation, at the README's defaults: a product
     along the directions found by independent component analysis covers every mode, so the
-    answer is right within its error bar and marked reliable. Without that family (the
-    control, below) the answer is wrong."""
+    answer is right within its error bar and marked reliable (the coverage check finds no mass
+    the run missed). Without that family (the control, below) the answer is wrong."""
     result, estimate, log_z = _rotated_run(FAMILIES)
     assert result.stages[-1].family == "rotated product", result.stages
     assert result.healthy and bool(estimate.reliable), estimate
     assert abs(float(estimate.value) - log_z) < 4 * float(estimate.standard_error), (estimate, log_z)
 
 
-def test_without_the_rotated_product_a_rotated_many_well_gets_no_answer():
+def test_without_the_rotated_product_a_rotated_many_well_is_marked_unreliable():
     """Without the rotated products the Laplace mixture of the 28 modes the searches found wins,
-    and the answer is 0.04 nats low: ten standard errors."""
+    and the answer is 0.04 nats low: ten standard errors. The run's own diagnostics cannot see
+    it (tours that would start in the 36 modes left to the defensive component are too rare to
+    be met), but the draws of the stage that chose the regeneration, run with another one, put
+    a tenth of the mass where this run expects no tour to start: the coverage check marks it
+    unreliable. Without the check it was marked reliable."""
     families = tuple(f for f in FAMILIES if f != "rotated-product")
     result, estimate, log_z = _rotated_run(families)
     right = abs(float(estimate.value) - log_z) < 4 * float(estimate.standard_error)
-    assert not right, (estimate, log_z, result.stages[-1])
+    assert not right and not bool(estimate.reliable), (estimate, log_z, result.stages[-1])
+    assert "earlier stage's draws" in estimate.caveat
+    assert not np.any(result.estimate("x").reliable)
