@@ -100,7 +100,7 @@ def pareto_k(largest: np.ndarray, n: int) -> float:
         return math.nan
     if not np.all(np.isfinite(top)):
         raise ValueError("pareto_k needs finite values")
-    exceedances = _exceedances(top, n)
+    exceedances = _exceedances(*_tail_top(top, n))
     if exceedances.size < 5:  # a flat top: no tail at all
         return 0.0
     return gpd_shape(exceedances)
@@ -113,11 +113,10 @@ def _tail_top(top: np.ndarray, n: int) -> tuple[float, np.ndarray]:
     return float(top[-1]), top[:-1]
 
 
-def _exceedances(top: np.ndarray, n: int) -> np.ndarray:
-    """The positive exceedances over the threshold of `_tail_top`. Values tied with it
-    (durations and integrals on a lattice of holding times) are not exceedances: zeros
-    would read as a heavy tail."""
-    threshold, above = _tail_top(top, n)
+def _exceedances(threshold: float, above: np.ndarray) -> np.ndarray:
+    """The positive exceedances of `above` over `threshold` (from `_tail_top`). Values tied
+    with it (durations and integrals on a lattice of holding times) are not exceedances:
+    zeros would read as a heavy tail."""
     exceedances = above - threshold
     return exceedances[exceedances > 0]
 
@@ -146,7 +145,7 @@ def tail_square_excess(largest: np.ndarray, n: int) -> float:
     if n < MIN_TERMS or top.size < 6:
         return 0.0
     threshold, above = _tail_top(top, n)
-    exceedances = _exceedances(top, n)
+    exceedances = _exceedances(threshold, above)
     if exceedances.size < 5:
         return 0.0
     k, sigma = gpd_fit(exceedances)
