@@ -72,6 +72,46 @@ class _JumpKeys(NamedTuple):
     regenerate: PRNGKeyArray
 
 
+class _JumpMove(NamedTuple):
+    """A jump step before the kill rate's terms at its new point: the event, and the point the
+    lane moved to (its old one after a rejected candidate; a new tour's start after a kill)."""
+
+    holding_time: Array
+    expected_holding_time: Array
+    killed: Array
+    negative_rate: Array
+    point: Point
+    invalid: Array
+    phase: Array
+    accepted: Array
+    acceptance_probability: Array
+
+
+#: `step_lanes` computes the kill terms of the lanes that moved or started a tour in batches of
+#: this share of the lanes (as many batches as they need; any size gives the same results).
+TERM_BATCH_SHARE = 0.25
+
+
+#: Floating-point operations (XLA's cost estimate, a transcendental function counted as
+#: `TRANSCENDENTAL_FLOPS`) of the reference densities from which `step_lanes` computes kill
+#: terms only where lanes moved: a 10-d Gaussian (about 400) is cheaper to evaluate at every
+#: lane; a mixture of three 10-d Student-t components (about 3,100) or a 32-d product of
+#: 8-component mixtures (about 5,000) is not.
+COSTLY_TERMS = 1000.0
+TRANSCENDENTAL_FLOPS = 10.0
+
+
+def _term_slots(num_lanes: int) -> int | None:
+    """Lanes per batch of kill terms (a multiple of 8), or `None` for too few lanes to gather."""
+    slots = -(-max(8, math.ceil(TERM_BATCH_SHARE * num_lanes)) // 8) * 8
+    return slots if 2 * slots <= num_lanes else None
+
+
+def _uncovered(log_regeneration: Array, logdensity: Array) -> Array:
+    """The regeneration density vanishes where the target's is positive (the lane is never killed there)."""
+    return (log_regeneration == -jnp.inf) & jnp.isfinite(logdensity)
+
+
 def _jump_keys(key: PRNGKeyArray) -> _JumpKeys:
     return _JumpKeys(*jax.random.split(key, 5))
 
@@ -386,14 +426,21 @@ class AbstractRestore(AbstractSampler):
         return self._decided_step(_jump_keys(key), state)
 
     def step_lanes(self, keys: PRNGKeyArray, states: RestoreState) -> tuple[RestoreState, StepInfo]:
-        """`vmap(step)`, with the next tours' starts drawn only for the lanes killed in this step.
+        """`vmap(step)`, with the work only some lanes need done for those lanes alone.
 
-        Equal to `vmap(step)` lane by lane (each lane's start comes from its own key); the
-        gathered draws save the regeneration draw of every lane that moves locally.
+        Equal to `vmap(step)` lane by lane. The next tours' starts are drawn only for the
+        lanes killed in this step (each start from its lane's own key), and the kill rate's
+        terms (`kill_terms`: the regeneration density `u`, which can cost many times the
+        target's density), when they are costly (`COSTLY_TERMS`), only where a lane moved
+        or started a tour; a lane whose candidate was rejected keeps its state's.
         """
-        slots = None if self.is_diffusion else draw_slots(keys.shape[0], self._kill_fraction())
-        if slots is None:
+        if self.is_diffusion:
             return super().step_lanes(keys, states)
+        slots = draw_slots(keys.shape[0], self._kill_fraction())
+        term_slots = _term_slots(keys.shape[0]) if self._costly_terms() else None
+        if slots is None and term_slots is None:
+            return super().step_lanes(keys, states)
+        slots = slots or keys.shape[0]  # (one batch of every lane: the same program as with sparse draws)
 
         def decide(key, state):
             split = _jump_keys(key)
@@ -402,7 +449,49 @@ class AbstractRestore(AbstractSampler):
 
         split, killed, phases = jax.vmap(decide)(keys, states)
         starts = draw_where(self._regenerate, killed, slots, phases, split.regenerate, states.position)
-        return jax.vmap(self._decided_step)(split, states, killed, starts)
+
+        def move(keys, state, killed, start):
+            return self._in_phase(state, lambda k, log_rates: self._jump_move(k, keys, state, log_rates, killed, start))
+
+        if term_slots is None:
+            return jax.vmap(self._decided_step)(split, states, killed, starts)
+        moves = jax.vmap(move)(split, states, killed, starts)
+        log_rates = self.calibrated_log_rates()
+        changed = moves.killed | jnp.any(moves.point.position != states.position, axis=-1)
+
+        def terms_at(phase, point, invalid):  # the point's log density alone may change
+            terms = self.kill_terms(phase, point, invalid, log_rates)
+            return terms.point.logdensity, terms.invalid, terms.log_regeneration, terms.log_kill_rate, terms.adjoint_ratio
+
+        computed = draw_where(terms_at, changed, term_slots, moves.phase, moves.point, moves.invalid)
+        kept = (moves.point.logdensity, moves.invalid, jnp.zeros_like(states.log_kill_rate), states.log_kill_rate, states.adjoint_ratio)
+        logdensity, invalid, log_q, log_kill, adjoint = (jnp.where(changed, new, old) for new, old in zip(computed, kept, strict=True))
+        terms = KillTerms(moves.point._replace(logdensity=logdensity), invalid, log_q, log_kill, adjoint)
+        # a state's `u` vanishes exactly where its kill rate is `-inf` at a positive density
+        uncovered = jnp.where(
+            changed,
+            _uncovered(terms.log_regeneration, terms.point.logdensity),
+            (states.log_kill_rate == -jnp.inf) & jnp.isfinite(states.logdensity),
+        )
+        return jax.vmap(self._jump_end)(states, moves, terms, uncovered)
+
+    def _costly_terms(self) -> bool:
+        """Whether the kill rate's terms cost enough (XLA's estimate for the phases' reference
+        densities, `COSTLY_TERMS`) that `step_lanes` computes them only where lanes moved;
+        the gathering costs more than it saves for a cheap density, and it compiles longer."""
+        point = jax.ShapeDtypeStruct((self.dim,), self.dtype)
+        total = 0.0
+        for transfer in self.transfers:
+            arrays, static = eqx.partition(transfer.reference, eqx.is_array)
+            shapes = jax.tree.map(lambda a: jax.ShapeDtypeStruct(a.shape, a.dtype), arrays)
+            try:
+                cost = jax.jit(lambda a, x, static=static: eqx.combine(a, static).log_prob(x)).lower(shapes, point).cost_analysis()
+            except Exception:  # no estimate from this backend: assume it is costly
+                return True
+            if not cost:
+                return True
+            total += float(cost.get("flops") or 0.0) + TRANSCENDENTAL_FLOPS * float(cost.get("transcendentals") or 0.0)
+        return total >= COSTLY_TERMS
 
     def _in_phase(self, state: RestoreState, fn: Callable[[int, Array], Any]):
         """`fn(k, log_rates)` for the lane's phase `k`."""
@@ -448,6 +537,10 @@ class AbstractRestore(AbstractSampler):
         return self._by_phase(phase, lambda j: self.transfers[j].sample(key, position)).astype(position.dtype)
 
     def _jump_step(self, k: int, keys: _JumpKeys, state: RestoreState, log_rates: Array, killed=None, fresh=None):
+        return self._jump_end_here(state, self._jump_move(k, keys, state, log_rates, killed, fresh))
+
+    def _jump_move(self, k: int, keys: _JumpKeys, state: RestoreState, log_rates: Array, killed=None, fresh=None) -> _JumpMove:
+        """A jump step of phase `k` up to the kill rate's terms at the point it leads to."""
         dynamics = cast(AbstractJumpDynamics, self.dynamics[k])
         dtype = state.logdensity.dtype
         log_gamma, negative, log_r = self._event_rates(k, state)
@@ -465,32 +558,43 @@ class AbstractRestore(AbstractSampler):
         moved, local_info = dynamics.accept(keys.accept, point, evaluated, aux)
         new_point = jax.tree.map(lambda a, b: jnp.where(killed, a, b), evaluated, moved)
         new_phase = jnp.where(killed, next_phase, state.phase) if self.num_phases > 1 else state.phase
+        return _JumpMove(
+            event.holding_time, event.expected_holding_time, killed, negative, new_point, invalid, new_phase,
+            local_info.accepted & ~killed, jnp.where(killed, 0.0, local_info.acceptance_probability).astype(dtype),
+        )  # fmt: skip
 
-        new_point, invalid, log_q, log_kill, adjoint = self.kill_terms(new_phase, new_point, invalid, log_rates)
+    def _jump_end_here(self, state: RestoreState, move: _JumpMove):
+        """`_jump_end` with the kill rate's terms computed at the move's point."""
+        terms = self.kill_terms(move.phase, move.point, move.invalid, self.calibrated_log_rates())
+        return self._jump_end(state, move, terms, _uncovered(terms.log_regeneration, terms.point.logdensity))
+
+    def _jump_end(self, state: RestoreState, move: _JumpMove, terms: KillTerms, uncovered: Array) -> tuple[RestoreState, StepInfo]:
+        """The new state and the step's report from a move and the kill rate's terms at its point."""
+        new_point, killed, dtype = terms.point, move.killed, state.logdensity.dtype
         new_state = RestoreState(
             new_point.position,
             new_point.logdensity,
             new_point.grad,
-            log_kill,
-            adjoint,
-            new_phase,
+            terms.log_kill_rate,
+            terms.adjoint_ratio,
+            move.phase,
             state.tour + killed.astype(jnp.int32),
             state.pending,
             new_point.aux,
         )
-        log_weight = jnp.where(killed, new_point.logdensity - log_q, -jnp.inf)
+        log_weight = jnp.where(killed, new_point.logdensity - terms.log_regeneration, -jnp.inf)
         info = StepInfo(
             position=state.position,
-            holding_time=event.holding_time,
-            expected_holding_time=event.expected_holding_time,
+            holding_time=move.holding_time,
+            expected_holding_time=move.expected_holding_time,
             regenerated=killed,
-            accepted=local_info.accepted & ~killed,
-            acceptance_probability=jnp.where(killed, 0.0, local_info.acceptance_probability).astype(dtype),
-            invalid=invalid,
-            uncovered=(log_q == -jnp.inf) & jnp.isfinite(new_point.logdensity),
+            accepted=move.accepted,
+            acceptance_probability=move.acceptance_probability,
+            invalid=terms.invalid,
+            uncovered=uncovered,
             log_importance_weight=jnp.where(jnp.isnan(log_weight), -jnp.inf, log_weight),
             start_drawn=killed,
-            negative_rate=negative,
+            negative_rate=move.negative_rate,
             bound_ratio=jnp.zeros((), dtype),
             aux=state.aux,
         )

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -52,33 +53,40 @@ def batch_lanes(needed: Bool[Array, " n"], rank: Array, first: Array, slots: int
     return jnp.full((slots,), num_lanes, jnp.int32).at[slot].set(jnp.arange(num_lanes, dtype=jnp.int32), mode="drop")
 
 
-def draw_where(draw: Callable[..., Array], needed: Bool[Array, " n"], slots: int, *args) -> Array:
+def draw_where(draw: Callable[..., Any], needed: Bool[Array, " n"], slots: int, *args) -> Any:
     """`vmap(draw)(*args)` at the lanes where `needed` holds; zeros at the others.
 
-    The lanes that need a draw are taken `slots` at a time, in lane order, until all are
-    drawn (one batch in a typical step). `draw` is traced once, so compiling it costs no
-    more than under `vmap`; only gathers are used (XLA's CPU scatter costs about as much
-    per lane as the draw that is saved).
+    The lanes that need a draw are listed once, in lane order, and drawn `slots` at a
+    time until all are drawn (one batch in a typical step); each batch's results are
+    written to the next rows of a compact buffer, and every lane reads its row back at the
+    end. So a batch costs in proportion to `slots`, not to the lanes. `draw` is traced
+    once, so compiling it costs no more than under `vmap`; only gathers and contiguous
+    writes are used (XLA's CPU scatter costs about as much per lane as the draw that is
+    saved).
 
     Arguments:
-        draw: one lane's draw from its own arguments (e.g. a key and a position).
+        draw: one lane's draw (or any computation) from its own arguments (e.g. a key and
+            a position); it may return a pytree of arrays.
         needed: which lanes use their draw.
         slots: how many lanes are drawn together (static).
-        args: arrays with a leading lane axis.
+        args: pytrees of arrays with a leading lane axis.
     """
     num_lanes = needed.shape[0]
-    rank = jnp.cumsum(needed) - 1  # among the lanes that need a draw
+    rank = jnp.cumsum(needed, dtype=jnp.int32) - 1  # among the lanes that need a draw
     total = rank[-1] + 1
+    rows = -(-num_lanes // slots) * slots  # room for every lane, in whole batches
+    order = batch_lanes(needed, rank, jnp.zeros((), jnp.int32), rows)  # the lanes that need a draw, then `num_lanes`
     one = jax.eval_shape(jax.vmap(draw), *jax.tree.map(lambda a: a[:1], args))
-    mask_shape = (-1,) + (1,) * (len(one.shape) - 1)
 
     def batch(loop):
-        first, out = loop
-        index = batch_lanes(needed, rank, first, slots)
-        values = jax.vmap(draw)(*jax.tree.map(lambda a: a[jnp.minimum(index, num_lanes - 1)], args))
-        slot = rank - first
-        mine = needed & (slot >= 0) & (slot < slots)
-        return first + slots, jnp.where(mine.reshape(mask_shape), values[jnp.clip(slot, 0, slots - 1)], out)
+        first, compact = loop
+        index = jnp.minimum(jax.lax.dynamic_slice_in_dim(order, first, slots), num_lanes - 1)
+        values = jax.vmap(draw)(*jax.tree.map(lambda a: a[index], args))
+        compact = jax.tree.map(lambda c, v: jax.lax.dynamic_update_slice_in_dim(c, v, first, 0), compact, values)
+        return first + slots, compact
 
-    empty = jnp.zeros((num_lanes,) + one.shape[1:], one.dtype)
-    return jax.lax.while_loop(lambda loop: loop[0] < total, batch, (jnp.zeros_like(total), empty))[1]
+    empty = jax.tree.map(lambda s: jnp.zeros((rows,) + s.shape[1:], s.dtype), one)
+    compact = jax.lax.while_loop(lambda loop: loop[0] < total, batch, (jnp.zeros_like(total), empty))[1]
+    row = jnp.clip(rank, 0, rows - 1)
+    back = lambda c: jnp.where(needed.reshape((-1,) + (1,) * (c.ndim - 1)), c[row], jnp.zeros((), c.dtype))
+    return jax.tree.map(back, compact)

@@ -36,6 +36,7 @@ import numpy as np
 from scipy.special import gammaln
 from threadpoolctl import threadpool_limits
 
+from .._linalg import inverse_tril
 from ._diagonal_mixture import DiagonalMixture, check_df
 from ._gaussian import Gaussian
 from ._independent_axes import independent_axes
@@ -289,8 +290,9 @@ def _mixture_fit(mix, means, covs, df, diagonal: bool) -> Fit:
         # Components from one checked template, with the Cholesky factors computed here; the
         # mixture from one component, then given all of them (it would trace every one's sampler).
         template = Gaussian(jnp.asarray(means[0], dtype), covs[0]) if df is None else StudentT(jnp.asarray(means[0], dtype), covs[0], df)
-        where = (lambda c: (c.mean, c.scale_tril)) if df is None else (lambda c: (c.loc, c.scale_tril))
-        components = tuple(eqx.tree_at(where, template, (jnp.asarray(m[i], dtype), jnp.asarray(f[i], dtype))) for i in range(size))
+        where = (lambda c: (c.mean, c.scale_tril, c.inverse_tril)) if df is None else (lambda c: (c.loc, c.scale_tril, c.inverse_tril))
+        trils = [jnp.asarray(f[i], dtype) for i in range(size)]
+        components = tuple(eqx.tree_at(where, template, (jnp.asarray(m[i], dtype), t, inverse_tril(t))) for i, t in enumerate(trils))
         mixture = Mixture([template])
         return eqx.tree_at(lambda u: (u.components, u.log_weights), mixture, (components, log_w))
 

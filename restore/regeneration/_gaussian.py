@@ -10,7 +10,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
-from .._linalg import half_log_det, mahalanobis_sq
+from .._linalg import half_log_det, inverse_tril, mahalanobis_sq
 from .._validation import check_point, check_shape, check_vector
 from ._base import AbstractRegeneration
 from ._utils import scale_tril
@@ -20,17 +20,19 @@ from ._utils import scale_tril
 class Gaussian(AbstractRegeneration):
     """Multivariate normal distribution `N(mean, cov)`.
 
-    The covariance is stored through its lower Cholesky factor, so `log_prob`
-    uses a triangular solve and never forms an inverse.
+    The covariance is stored through its lower Cholesky factor `L`, and `log_prob`
+    multiplies by `L^{-1}`, solved for once when the distribution is built.
 
     Attributes:
         mean: the mean, shape `(d,)`.
         scale_tril: lower-triangular `L` with `L @ L.T == cov`, shape `(d, d)`.
+        inverse_tril: `L^{-1}`, shape `(d, d)` (kept with `L`: replace both together).
         dim: the dimension `d` (static).
     """
 
     mean: Float[Array, " d"]
     scale_tril: Float[Array, "d d"]
+    inverse_tril: Float[Array, "d d"]
     dim: int = eqx.field(static=True)
 
     def __init__(self, mean: ArrayLike, cov: ArrayLike = 1.0):
@@ -50,6 +52,7 @@ class Gaussian(AbstractRegeneration):
         dtype = jnp.result_type(mean.dtype, tril.dtype)
         self.mean = mean.astype(dtype)
         self.scale_tril = tril.astype(dtype)
+        self.inverse_tril = inverse_tril(self.scale_tril)
 
     @property
     def cov(self) -> Float[Array, "d d"]:
@@ -72,7 +75,7 @@ class Gaussian(AbstractRegeneration):
     def log_prob(self, x: Float[Array, " d"]) -> Float[Array, ""]:
         """Normalised log density of one point `x` of shape `(d,)`."""
         x = check_point(x, self.dim, "x")
-        maha = mahalanobis_sq(self.scale_tril, x - self.mean)
+        maha = mahalanobis_sq(self.scale_tril, x - self.mean, self.inverse_tril)
         return (
             -0.5 * maha
             - half_log_det(self.scale_tril)

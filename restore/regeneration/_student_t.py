@@ -12,7 +12,7 @@ import numpy as np
 from jax.scipy.special import betaln, gammaln
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
-from .._linalg import half_log_det, mahalanobis_sq
+from .._linalg import half_log_det, inverse_tril, mahalanobis_sq
 from .._threefry import loggamma
 from .._validation import as_float_array, check_point, check_shape, check_vector, is_concrete
 from ._base import AbstractRegeneration
@@ -61,12 +61,14 @@ class StudentT(AbstractRegeneration):
     Attributes:
         loc: the location (the mode), shape `(d,)`.
         scale_tril: lower-triangular `L` with `L @ L.T == scale`, shape `(d, d)`.
+        inverse_tril: `L^{-1}`, shape `(d, d)` (kept with `L`: replace both together).
         df: the degrees of freedom, a positive scalar.
         dim: the dimension `d` (static).
     """
 
     loc: Float[Array, " d"]
     scale_tril: Float[Array, "d d"]
+    inverse_tril: Float[Array, "d d"]
     df: Float[Array, ""]
     integer_df: int | None = eqx.field(static=True)
     dim: int = eqx.field(static=True)
@@ -106,6 +108,7 @@ class StudentT(AbstractRegeneration):
                 )
         self.loc = loc.astype(dtype)
         self.scale_tril = tril.astype(dtype)
+        self.inverse_tril = inverse_tril(self.scale_tril)
         self.df = df.astype(dtype)
         # A small integer df draws chi2(df) as a sum of squared normals: exact, and much
         # cheaper to compile and run than the rejection sampler behind loggamma.
@@ -152,7 +155,7 @@ class StudentT(AbstractRegeneration):
         # Beyond 1/eps^2 degrees of freedom the density equals the Gaussian limit to working
         # precision; capping df keeps `maha / df` from underflowing (XLA flushes subnormals).
         df = jnp.minimum(self.df, 1.0 / jnp.finfo(self.df.dtype).eps ** 2)
-        maha = mahalanobis_sq(self.scale_tril, x - self.loc)
+        maha = mahalanobis_sq(self.scale_tril, x - self.loc, self.inverse_tril)
         log_gamma_ratio = _log_gamma_ratio(0.5 * df, 0.5 * d)
         return (
             log_gamma_ratio

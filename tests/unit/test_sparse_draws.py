@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 import restore
+import restore._restore as restore_module
 from restore._sparse_draws import draw_slots, draw_where
 from restore.dynamics import Jump
 from restore.local import RandomWalk
@@ -71,10 +72,23 @@ def _samplers():
     yield "MH with large steps", restore.MixtureMH(target.logdensity, RandomWalk(0.8), heavy, large_step_probability=0.1)
 
 
+@pytest.mark.parametrize("costly", [False, True], ids=["kill terms at every lane", "kill terms where lanes moved"])
 @pytest.mark.parametrize("name, sampler", list(_samplers()), ids=[n for n, _ in _samplers()])
-def test_step_lanes_is_vmap_of_step_lane_by_lane(name, sampler):
+def test_step_lanes_is_vmap_of_step_lane_by_lane(name, sampler, costly, monkeypatch):
+    """Costly kill terms (`COSTLY_TERMS`, lowered to 0 here) are computed only where lanes
+    moved or started a tour, in batches: the same values as at every lane."""
+    if costly:
+        monkeypatch.setattr(restore_module, "COSTLY_TERMS", 0.0)
     _, fast = _steps(sampler, sampler.step_lanes)
     _, plain = _steps(sampler, jax.vmap(sampler.step))
     for a, b in zip(fast, plain, strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     assert np.asarray(fast[1]).any() or name.startswith("MH")  # some lanes did draw a start
+
+
+def test_kill_terms_count_as_costly_for_a_mixture_and_not_for_one_small_gaussian():
+    normal = lambda x: -0.5 * jnp.sum(x**2)  # noqa: E731
+    gaussian = restore.JumpRestore(normal, RandomWalk(0.5), Gaussian(jnp.zeros(10), 2.0 * jnp.eye(10)), log_rate=0.0)
+    modes = Mixture([StudentT(jnp.full(10, float(i)), jnp.eye(10), 5.0) for i in range(3)])
+    mixture = restore.JumpRestore(normal, RandomWalk(0.5), modes, log_rate=0.0)
+    assert not gaussian._costly_terms() and mixture._costly_terms()
