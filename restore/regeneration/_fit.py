@@ -428,7 +428,8 @@ def fit_rotated_product(draws, weights, num_components: int, *, seed: int = 0, i
     `y = A (x - centre)` from `independent_axes`, a product of one-dimensional mixtures
     fitted to `y` (a `RotatedProductMixture`)."""
     x, w = _prepare(draws, weights)
-    centre, transform, _ = independent_axes(x, w, seed=seed)
+    axes = independent_axes(x, w, seed=seed)
+    centre, transform = axes.centre, axes.transform
     product = fit_product((x - centre) @ transform.T, w, num_components, seed=seed, iterations=iterations, tolerance=tolerance)
     return rotated(product, centre, transform)
 

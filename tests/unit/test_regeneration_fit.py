@@ -21,6 +21,7 @@ from restore.regeneration import (
     fit_rotated_product,
     independent_axes,
 )
+from restore.regeneration._choose import AXES_GAIN
 
 KEY = jax.random.key(3)
 
@@ -269,6 +270,9 @@ def test_independent_axes_turn_a_rotated_product_back_into_a_product():
     turned, straight = independent_axes(x, np.ones(len(x))), independent_axes(y, np.ones(len(y)))
     assert turned.non_gaussian.sum() == straight.non_gaussian.sum() == 4  # the wells, not the normal coordinates
     assert straight.along_coordinates() and not turned.along_coordinates()  # no rotation of draws independent along the axes
+    # the expected gain over the coordinate axes: a low estimate of the held-out gain, near zero where there is none
+    assert 1.0 < turned.gain < along_found - along_coordinates, (turned.gain, along_found - along_coordinates)
+    assert abs(straight.gain) < AXES_GAIN, straight.gain
 
 
 @pytest.mark.slow
