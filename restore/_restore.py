@@ -437,7 +437,9 @@ class AbstractRestore(AbstractSampler):
         if self.is_diffusion:
             return super().step_lanes(keys, states)
         slots = draw_slots(keys.shape[0], self._kill_fraction())
-        term_slots = _term_slots(keys.shape[0]) if self._costly_terms() else None
+        term_slots = _term_slots(keys.shape[0])
+        if term_slots is not None and not self._costly_terms():  # (asked only where the lanes are enough to gather)
+            term_slots = None
         if slots is None and term_slots is None:
             return super().step_lanes(keys, states)
         slots = slots or keys.shape[0]  # (one batch of every lane: the same program as with sparse draws)
@@ -450,11 +452,12 @@ class AbstractRestore(AbstractSampler):
         split, killed, phases = jax.vmap(decide)(keys, states)
         starts = draw_where(self._regenerate, killed, slots, phases, split.regenerate, states.position)
 
+        if term_slots is None:
+            return jax.vmap(self._decided_step)(split, states, killed, starts)
+
         def move(keys, state, killed, start):
             return self._in_phase(state, lambda k, log_rates: self._jump_move(k, keys, state, log_rates, killed, start))
 
-        if term_slots is None:
-            return jax.vmap(self._decided_step)(split, states, killed, starts)
         moves = jax.vmap(move)(split, states, killed, starts)
         log_rates = self.calibrated_log_rates()
         changed = moves.killed | jnp.any(moves.point.position != states.position, axis=-1)

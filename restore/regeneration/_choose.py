@@ -62,10 +62,8 @@ class Choice(NamedTuple):
 
 
 #: A rotated product is fitted beside the plain product only when its directions are expected to
-#: raise the mean log density by at least this many nats (`IndependentAxes.gain`, an estimate
-#: that fell short of the held-out difference by a factor of 1.3 to 4 on a rotated 16-d Many
-#: Well, where it was 1.3 to 7.4; on Many-Well-32, whose coordinates are its independent axes,
-#: it was 0.08 and -7.1, and the rotated product scored 3.5 and 19 nats worse).
+#: raise the mean log density by at least this many nats (`IndependentAxes.gain`, a low
+#: estimate; the measurements behind the value are in docs/how-to/regeneration.md).
 AXES_GAIN = 0.25
 
 #: EM iterations of a mixture candidate during the search (the chosen one is refitted to convergence).
