@@ -14,7 +14,6 @@ from . import local as local
 from . import regeneration as regeneration
 from . import transfer as transfer
 from ._autosample import AutoResult as AutoResult
-from ._autosample import StageReport as StageReport
 from ._autosample import autosample as autosample
 from ._bounds import MinimalRate as MinimalRate
 from ._bounds import RateBound as RateBound
@@ -49,6 +48,7 @@ from ._sampler import RunFacts as RunFacts
 from ._sampler import StepInfo as StepInfo
 from ._speculation import SpeculativeSteps as SpeculativeSteps
 from ._speculation import speculative_steps as speculative_steps
+from ._stages import StageReport as StageReport
 from ._threefry import UNROLLED_THREEFRY as UNROLLED_THREEFRY
 from ._threefry import unrolled_keys as unrolled_keys
 from ._trace import RunTrace as RunTrace

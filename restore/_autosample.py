@@ -28,9 +28,11 @@ target. `autosample` builds `u` in stages, population-Monte-Carlo style:
    the final run expects fewer than one tour to start, which no diagnostic of that run can
    see, marks its estimates unreliable (`coverage_caveat`).
 
-If no stage becomes healthy within `max_stages`, the final run uses the stage with the
-lightest tail, and its estimates carry the diagnostics that say their error bars cannot
-be trusted. It never raises because the target has no mode or too many of them.
+If no stage becomes healthy, adapting goes on while the stages keep finding mass (up to
+`max_stages`), and the final run takes the stage with the lightest tail among those whose
+`log Z` is not clearly below the highest (`restore._stages`); its estimates carry the
+diagnostics that say their error bars cannot be trusted. It never raises because the
+target has no mode or too many of them.
 """
 
 from __future__ import annotations
@@ -41,7 +43,7 @@ import time
 import warnings
 import weakref
 from collections.abc import Callable, Mapping, Sequence
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -62,6 +64,7 @@ from ._result import SampleResult
 from ._sample import sample
 from ._seeding import seed_draws
 from ._seeding_modes import laplace_candidates
+from ._stages import StageReport, final_stage, keep_adapting
 from ._validation import check_integer, check_key, check_logdensity
 from ._warnings import AUTOSAMPLE_ADVICE, advising
 from .local import AbstractLocalKernel, CorrelatedRandomWalk, GuidedRandomWalk, RandomWalk
@@ -85,6 +88,9 @@ HEALTHY_IMPORTANCE_K = K_HAT_LIMIT
 DEFENSIVE_DF = 3.0
 #: Seeding starts on which the log density's coordinates are checked (`check_coordinates`).
 PROBE_POINTS = 8
+#: The keys of the first this many stages come from one split of the call's key (with the seeding's
+#: and the final run's); a later stage folds its number into the last of them.
+KEYED_STAGES = 6
 
 #: Per log density and dimension, the number of components each regeneration family was last
 #: run with (padded with zero-weight components: `Fit.padded`). A Restore run's programs are
@@ -102,37 +108,15 @@ def _program_sizes(logdensity, dim: int, dtype) -> dict[str, int]:
     return per_target.setdefault((dim, jnp.dtype(dtype).name), {})
 
 
-class StageReport(NamedTuple):
-    """What one stage of `autosample` did and found.
+class _Tried(NamedTuple):
+    """A Restore stage as the final run may take it: its report, fit, regeneration (defensive
+    component included), trusted `log Z` (or `None`) and the draws its regeneration was chosen by."""
 
-    Attributes:
-        stage: 0 for the seeding chains, then 1, 2, ... for Restore stages.
-        kind: `"seed"`, `"adapt"` (a Restore stage that chose the next regeneration)
-            or `"final"`.
-        family: the regeneration family of the stage (`"chains"` for seeding).
-        num_components: its number of components.
-        evaluations: log-density evaluations spent by the stage (pilot included).
-        wall_time: seconds, compilation included.
-        duration_k_hat: Pareto shape of the tour durations (NaN for seeding).
-        importance_k_hat: Pareto shape of the importance weights at tour starts.
-        effective_tours: effective number of tours as a share of the tours.
-        log_z: the stage's `log Z` estimate from its tours (NaN for seeding).
-        log_z_se: its standard error.
-        healthy: the stage's tails are light enough to stop adapting.
-    """
-
-    stage: int
-    kind: str
-    family: str
-    num_components: int
-    evaluations: int
-    wall_time: float
-    duration_k_hat: float
-    importance_k_hat: float
-    effective_tours: float
-    log_z: float
-    log_z_se: float
-    healthy: bool
+    report: StageReport
+    fit: Any
+    regeneration: Mixture
+    log_z: float | None
+    chosen_from: tuple[np.ndarray, np.ndarray]
 
 
 class AutoResult:
@@ -371,7 +355,7 @@ def autosample(
     families: Sequence[str] = FAMILIES,
     laplace: bool = True,
     defensive: float = 0.1,
-    max_stages: int = 6,
+    max_stages: int = 16,
     stage_steps: int | None = None,
     seed_steps: int = 200,
     progress: bool = True,
@@ -412,7 +396,9 @@ def autosample(
             Student-t components) at the modes that optimisation from the seeding chains' last states finds (when
             the log density has a gradient and modes are found).
         defensive: weight of the defensive component in every regeneration.
-        max_stages: most Restore stages before the final run.
+        max_stages: most Restore stages before the final run. Adapting stops at the first
+            healthy stage; without one, after 6 stages it goes on only while one of the last 3
+            found mass the stages before it missed (a `log Z` 3 standard errors above theirs).
         stage_steps: steps per lane of each stage (default `max(100, num_steps // 4)`).
         seed_steps: steps of each seeding chain.
         progress: show progress bars and one line per stage.
@@ -436,7 +422,7 @@ def autosample(
     check_logdensity(logdensity, d)
     say = console_note if progress else (lambda message: None)
 
-    key_seed, key_starts, key_final, stage_keys = _keys(key, max_stages)
+    key_seed, key_starts, key_final, stage_keys = _keys(key, min(max_stages, KEYED_STAGES))
     clock = time.perf_counter()
     starts = distribution_draws(starts_from, key_starts, num_lanes)
     if starts.dtype != dtype:
@@ -485,18 +471,20 @@ def autosample(
     else:  # the final run stores no draws; the stages need some to fit to
         stage_save = SaveDraws(min(100_000, num_lanes * 64))
 
-    best = None  # (report, fit, regeneration, log Z) of the stage the final run takes (see `preferred`)
-    chosen_from = (draws, weights)  # the draws its regeneration was chosen by
+    tried: list[_Tried] = []
     log_z = None
-    for stage in range(1, max_stages + 1):
+    stage = 0
+    while True:
+        stage += 1
         clock = time.perf_counter()
         choice = choose_regeneration(draws, weights, groups, families=families, seed=stage, sizes=sizes, extra=extra)
         u = regeneration_from(choice.fit)
         sampler, piloted = sampler_for(u, log_z)
+        stage_key = stage_keys[stage - 1] if stage <= len(stage_keys) else jax.random.fold_in(stage_keys[-1], stage)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             result = sample(
-                sampler, stage_keys[stage - 1], num_lanes=num_lanes, num_steps=stage_steps,
+                sampler, stage_key, num_lanes=num_lanes, num_steps=stage_steps,
                 observables=observables, progress=progress, save=stage_save,
             )  # fmt: skip
         pilot = sampler.pilot_size if piloted else 0
@@ -511,17 +499,15 @@ def autosample(
         # from a pilot: tours that outlast a stage bias its log Z (low, by a nat or more in a
         # first stage), and a rate off by that much makes the next stage's tours that much longer.
         log_z = _trusted_log_z(result)
-        if best is None or preferred(report, best[0]):
-            best = (report, choice.fit, u, log_z)
-            chosen_from = (draws, weights)  # drawn with another regeneration: evidence on this one's coverage
-        if report.healthy:  # the final run takes this stage's regeneration
+        # the draws this regeneration was chosen by, drawn with another one: evidence on its coverage
+        tried.append(_Tried(report, choice.fit, u, log_z, _coverage_sample(draws, weights)))
+        if report.healthy or not keep_adapting([t.report for t in tried], max_stages):
             break
         draws = result.draws.reshape(-1, d)
         weights = result.draw_weights.reshape(-1)
         groups = np.broadcast_to(np.arange(result.num_lanes), result.draw_weights.shape).reshape(-1)
 
-    assert best is not None  # `max_stages >= 1`, and the first stage sets it
-    report, fit, u, log_z = best
+    report, fit, u, log_z, chosen_from = tried[final_stage([t.report for t in tried])]
     clock = time.perf_counter()
     sampler, piloted = sampler_for(u, log_z)
     with advising(AUTOSAMPLE_ADVICE):
@@ -562,30 +548,36 @@ def coverage_caveat(logdensity, regeneration: AbstractRegeneration, result: Samp
     `COVERAGE_SE` standard errors of `log Z` of the target's mass there, the estimates are
     marked unreliable.
     """
-    x = np.asarray(draws, np.float64)
-    w = np.asarray(weights, np.float64).reshape(-1)
-    keep = np.flatnonzero(np.isfinite(w) & (w > 0) & np.all(np.isfinite(x), axis=1))
-    if keep.size > COVERAGE_DRAWS:
-        keep = np.sort(np.random.default_rng(0).choice(keep, COVERAGE_DRAWS, replace=False))
-    if keep.size == 0 or not result.has_tours:
+    x, w = _coverage_sample(draws, weights)
+    if w.size == 0 or not result.has_tours:
         return Coverage("", 0)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         log_z = result.normalising_constant()
     if not (np.isfinite(float(log_z.value)) and bool(log_z.reliable)):
         return Coverage("", 0)  # marked already
-    points = jnp.asarray(x[keep], result.draws.dtype)
+    points = jnp.asarray(x, result.draws.dtype)
     log_p, log_u = _densities(logdensity, regeneration, points)
     tours = float(np.sum(result.sums.num_tours))
-    mass = unseen_mass(np.asarray(log_p), np.asarray(log_u), w[keep], float(log_z.value), tours)
+    mass = unseen_mass(np.asarray(log_p), np.asarray(log_u), w, float(log_z.value), tours)
     if mass <= max(COVERAGE_SE * float(log_z.standard_error), COVERAGE_FLOOR):
-        return Coverage("", int(keep.size))
+        return Coverage("", int(w.size))
     return Coverage(
         f"about {mass:.1%} of the target's mass, seen in an earlier stage's draws, lies where the regeneration is so "
         f"thin that this run's {tours:,.0f} tours expect fewer than one start there, so the estimates miss it "
         f"(a mode or region the regeneration leaves to its defensive component): {COVERAGE_REMEDY}",
-        int(keep.size),
+        int(w.size),
     )
+
+
+def _coverage_sample(draws, weights) -> tuple[np.ndarray, np.ndarray]:
+    """The finite draws of positive weight, at most `COVERAGE_DRAWS` of them (a fixed random subset, in order)."""
+    x = np.asarray(draws, np.float64)
+    w = np.asarray(weights, np.float64).reshape(-1)
+    keep = np.flatnonzero(np.isfinite(w) & (w > 0) & np.all(np.isfinite(x), axis=1))
+    if keep.size > COVERAGE_DRAWS:
+        keep = np.sort(np.random.default_rng(0).choice(keep, COVERAGE_DRAWS, replace=False))
+    return x[keep], w[keep]
 
 
 @jit(filtered=True, once=True)
@@ -596,8 +588,8 @@ def _densities(logdensity, regeneration, points):
 
 @jit(static_argnums=1, once=True)
 def _keys(key: PRNGKeyArray, max_stages: int):
-    """The keys of the seeding chains, their starts, the final run and every stage, in one
-    compiled program (eager splits and folds would compile one each)."""
+    """The keys of the seeding chains, their starts, the final run and the first `max_stages`
+    stages, in one compiled program (eager splits and folds would compile one each)."""
     key_seed, key_starts, key_final, *stages = jax.random.split(key, 3 + max_stages)
     return key_seed, key_starts, key_final, tuple(stages)
 
@@ -612,18 +604,3 @@ def _trusted_log_z(result: SampleResult) -> float | None:
             return None
     value = float(log_z.value)
     return value if math.isfinite(value) and bool(log_z.reliable) else None
-
-
-def preferred(report: StageReport, other: StageReport) -> bool:
-    """Whether the final run should take `report`'s regeneration rather than `other`'s: a healthy
-    stage wins; between unhealthy ones, the lighter heavier-tail does."""
-    if report.healthy != other.healthy:
-        return report.healthy
-    return _tail(report) < _tail(other)
-
-
-def _tail(report: StageReport) -> float:
-    """The heavier of a stage's two tail shapes (durations, importance weights): lower is better."""
-    shapes = [k for k in (report.duration_k_hat, report.importance_k_hat) if math.isfinite(k)]
-    return max(shapes) if len(shapes) == 2 else math.inf
-

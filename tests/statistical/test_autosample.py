@@ -79,18 +79,58 @@ def test_the_final_run_reuses_the_programs_compiled_for_its_stage(spread, traced
     assert traced.count("_init") <= len(structures), (traced.count("_init"), structures)
 
 
+def _stage(k_t, k_w, healthy=False, log_z=0.0, se=0.01):
+    return restore.StageReport(1, "adapt", "product", 4, 1000, 1.0, k_t, k_w, 0.5, log_z, se, healthy)
+
+
 def test_the_final_run_takes_a_healthy_stage():
-    """A healthy stage beats an unhealthy one with a lighter duration tail; otherwise the heavier of the
-    two tail shapes decides."""
-    from restore._autosample import preferred
+    """A healthy stage beats unhealthy ones with lighter tails; between unhealthy stages with the
+    same `log Z`, the heavier of the two tail shapes decides, a missing one counting as heaviest."""
+    from restore._stages import final_stage
 
-    def stage(k_t, k_w, healthy):
-        return restore.StageReport(1, "adapt", "product", 4, 1000, 1.0, k_t, k_w, 0.5, 0.0, 0.01, healthy)
+    assert final_stage([_stage(-0.2, 0.9), _stage(0.1, 0.1, healthy=True)]) == 1
+    assert final_stage([_stage(-0.1, 0.8), _stage(0.2, 0.3)]) == 1
+    assert final_stage([_stage(0.4, 0.6), _stage(0.2, float("nan"))]) == 0
 
-    assert preferred(stage(0.1, 0.1, True), stage(-0.2, 0.9, False))
-    assert not preferred(stage(-0.2, 0.9, False), stage(0.1, 0.1, True))
-    assert preferred(stage(0.2, 0.3, False), stage(-0.1, 0.8, False))
-    assert not preferred(stage(0.2, float("nan"), False), stage(0.4, 0.6, False))
+
+def test_the_final_run_does_not_take_a_stage_that_missed_mass():
+    """Among unhealthy stages, a light tail whose `log Z` is clearly below another stage's is a stage
+    whose tours never went where that mass is (measured on a 10-d funnel in a wide box: the first
+    stage, tail 0.60, log Z 3.4 nats low, beat the sixth, tail 0.91, 0.7 nats low). Fails for the
+    lightest tail alone, which takes the first stage."""
+    from restore._stages import final_stage
+
+    climbing = [
+        _stage(-0.07, 0.60, log_z=-0.27, se=0.032),
+        _stage(0.25, 0.78, log_z=1.27, se=0.019),
+        _stage(0.46, 0.88, log_z=1.80, se=0.028),
+        _stage(0.56, 0.91, log_z=3.02, se=0.013),
+    ]
+    assert final_stage(climbing) == 3
+    # within the noise of the highest log Z, the lighter tail still wins
+    level = [_stage(0.5, 0.9, log_z=-0.013, se=0.010), _stage(0.3, 0.63, log_z=-0.029, se=0.006)]
+    assert final_stage(level) == 1
+    # ...but not when its log Z is clearly lower (a one-component fit that left the neck to the defensive part)
+    assert final_stage(level + [_stage(0.01, 0.26, log_z=-0.254, se=0.019)]) == 1
+
+
+def test_adapting_goes_on_while_stages_find_mass():
+    """After six stages, adapting goes on only while one of the last three found mass the earlier ones
+    missed, and never past `max_stages`."""
+    from restore._stages import STALL_FROM, keep_adapting
+
+    flat = [_stage(0.6, 0.9, log_z=0.0, se=0.01) for _ in range(STALL_FROM)]
+    assert all(keep_adapting(flat[:n], 16) for n in range(1, STALL_FROM))
+    assert not keep_adapting(flat, 16)
+    climbing = [_stage(0.6, 0.9, log_z=0.4 * i, se=0.01) for i in range(STALL_FROM)]
+    assert keep_adapting(climbing, 16)
+    assert not keep_adapting(climbing, STALL_FROM)
+    # one stage that found mass keeps it going for three more stages, not longer
+    found = climbing + [_stage(0.6, 0.9, log_z=2.0, se=0.01)] * 2
+    assert keep_adapting(found, 16)
+    assert not keep_adapting(found + [_stage(0.6, 0.9, log_z=2.0, se=0.01)], 16)
+    # noise within three standard errors is no progress
+    assert not keep_adapting(flat + [_stage(0.6, 0.9, log_z=0.03, se=0.01)] * 3, 16)
 
 
 def test_a_target_without_a_mode_runs():
