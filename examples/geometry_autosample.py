@@ -42,18 +42,13 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import restore  # noqa: E402
-
-
-def rotation(d: int, seed: int) -> np.ndarray:
-    """A random rotation `(d, d)` (QR of a Gaussian matrix, signs fixed)."""
-    q, r = np.linalg.qr(np.random.default_rng(seed).standard_normal((d, d)))
-    return q * np.sign(np.diag(r))
+from targets.analytic import random_rotation  # noqa: E402
 
 
 def gauss50():
     """The rotated ill-conditioned Gaussian: log density, box, log Z, mean, second moment."""
     d, log_z = 50, 2.5
-    q = rotation(d, 11)
+    q = random_rotation(d, 11)
     cov = q @ np.diag(np.logspace(-2, 2, d)) @ q.T
     mean = np.random.default_rng(12).uniform(-3, 3, d)
     precision = jnp.asarray(np.linalg.inv(cov))
@@ -72,7 +67,7 @@ def manywell16():
     from targets.analytic import ManyWell
 
     target = ManyWell(16)
-    q = rotation(16, 21)
+    q = random_rotation(16, 21)
     qj = jnp.asarray(q)
     mean = q @ np.asarray(target.mean, np.float64)
     cov = q @ np.asarray(target.covariance, np.float64) @ q.T
@@ -166,33 +161,17 @@ def run_smc(name: str, seed: int) -> dict:
 
 def run_nuts(name: str, seed: int, chains: int = 4, warmup: int = 1000, kept: int = 1000) -> dict:
     """BlackJAX NUTS with window adaptation (dense mass matrix), `chains` chains from uniform starts
-    in the box: worst mean error in exact standard deviations, gradient evaluations, wall time."""
-    import blackjax
+    in the box (`restore.bench.NUTSRunner`): worst mean error in exact standard deviations,
+    gradient evaluations, wall time."""
+    from restore.bench import NUTSRunner
 
     logdensity, half, _, mean, second = PROBLEMS[name]()
     d = mean.shape[0]
-    key_starts, key_runs = jax.random.split(jax.random.key(seed))
-    starts = jax.random.uniform(key_starts, (chains, d), minval=-half, maxval=half)
-
-    def chain(key, x0):
-        key_warm, key_run = jax.random.split(key)
-        adaptation = blackjax.window_adaptation(blackjax.nuts, logdensity, is_mass_matrix_diagonal=False)
-        (state, parameters), warm = adaptation.run(key_warm, x0, num_steps=warmup)
-        kernel = blackjax.nuts(logdensity, **parameters)
-
-        def step(state, key):
-            state, info = kernel.step(key, state)
-            return state, (state.position, info.num_integration_steps)
-
-        _, (positions, steps) = jax.lax.scan(step, state, jax.random.split(key_run, kept))
-        return positions, jnp.sum(steps) + jnp.sum(warm.info.num_integration_steps)
-
     clock = time.perf_counter()
-    positions, gradients = jax.block_until_ready(jax.jit(jax.vmap(chain))(jax.random.split(key_runs, chains), starts))
+    out = NUTSRunner(chains, warmup, kept).run(_BoxProblem(name, logdensity, half, d), jax.random.key(seed))
     seconds = time.perf_counter() - clock
-    sd = _sd(mean, second)
-    estimate = np.asarray(positions, np.float64).reshape(-1, d).mean(axis=0)
-    return dict(moment_sd=float(np.nanmax(np.abs(estimate - mean) / sd)), evaluations=int(np.sum(gradients)), seconds=seconds)
+    moment_sd = np.abs(np.asarray(out.mean) - mean) / _sd(mean, second)
+    return dict(moment_sd=float(np.nanmax(moment_sd)), evaluations=out.evaluations, seconds=seconds)
 
 
 def main() -> None:

@@ -170,7 +170,7 @@ def bench(
     evidence: bool = typer.Option(
         False,
         "--evidence",
-        help="The evidence benchmark instead: log Z of Restore, tempered SMC and nested sampling (evidence.csv, evidence.md).",
+        help="The evidence benchmark instead: log Z of Restore, tempered SMC and nested sampling, moments beside NUTS (evidence.csv, evidence.md).",
     ),
 ) -> None:
     """Jump Restore against the MH baseline, emcee and BlackJAX, at equal evaluations and equal wall time."""

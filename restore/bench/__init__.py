@@ -34,6 +34,7 @@ from ._metrics import score as score
 from ._mmd import median_bandwidth as median_bandwidth
 from ._mmd import mmd as mmd
 from ._nested_runner import DynestyRunner as DynestyRunner
+from ._nuts_runner import NUTSRunner as NUTSRunner
 from ._plots import plot_curves as plot_curves
 from ._plots import plot_ratios as plot_ratios
 from ._problems import PROBLEMS as PROBLEMS

@@ -15,6 +15,7 @@ from ._evidence_problems import EVIDENCE_PROBLEMS, EvidenceReference, get_eviden
 from ._evidence_restore import AutosampleRunner, LaplaceRestoreRunner
 from ._evidence_runner import EvidenceOutput, EvidenceRunner, short_message
 from ._nested_runner import DynestyRunner
+from ._nuts_runner import NUTSRunner
 from ._smc_runner import TemperedSMCRunner
 from ._suite import _key, _progress
 
@@ -29,7 +30,8 @@ class EvidenceConfig:
     stopped after `nested_seconds` of sampling at the latest; Restore's hand-built recipe and
     `restore.autosample` with `restore_lanes` lanes of `restore_steps` steps (the recipe
     finds modes from `restore_starts` uniform starts in the box; `autosample` runs at most
-    `restore_stages` adaptive stages). `samplers`, when given,
+    `restore_stages` adaptive stages; `None`: its default); NUTS (moments only) with `nuts_chains`
+    chains of `nuts_warmup` adaptation and `nuts_kept` kept steps. `samplers`, when given,
     keeps the methods whose names start with one of its entries.
     """
 
@@ -43,7 +45,10 @@ class EvidenceConfig:
     restore_lanes: int = 1024
     restore_steps: int = 1000
     restore_starts: int = 256
-    restore_stages: int = 6
+    restore_stages: int | None = None
+    nuts_chains: int = 4
+    nuts_warmup: int = 1000
+    nuts_kept: int = 1000
     samplers: tuple[str, ...] | None = None
     reference_draws: int = 65536
     base_seed: int = 0
@@ -75,15 +80,18 @@ class EvidenceConfig:
         return cls(
             "tiny", problems=("gmm40",), seeds=1, smc_particles=64, smc_mcmc_steps=2, nested_live=25,
             nested_seconds=2.0, restore_lanes=32, restore_steps=60, restore_starts=32, restore_stages=1, reference_draws=4096,
+            nuts_chains=2, nuts_warmup=20, nuts_kept=20,
         )
 
     def runners(self) -> list[EvidenceRunner]:
-        """The methods of this configuration: Restore (recipe, autosample), tempered SMC, dynesty."""
+        """The methods of this configuration: Restore (recipe, autosample), tempered SMC, dynesty, NUTS."""
         out: list[EvidenceRunner] = [
             LaplaceRestoreRunner(self.restore_lanes, self.restore_steps, self.restore_starts),
             AutosampleRunner(self.restore_lanes, self.restore_steps, self.restore_stages),
             TemperedSMCRunner(self.smc_particles, self.smc_mcmc_steps),
+            TemperedSMCRunner(self.smc_particles, self.smc_mcmc_steps, dense=True, name="smc-hmc-dense"),
             DynestyRunner(self.nested_live, self.nested_seconds),
+            NUTSRunner(self.nuts_chains, self.nuts_warmup, self.nuts_kept),
         ]
         if self.samplers is not None:
             out = [r for r in out if any(r.name.startswith(s) for s in self.samplers)]

@@ -134,6 +134,29 @@ def _funnel():
     return Funnel(10, scale=3.0)
 
 
+def _rotated_gaussian():
+    """50-d, variances 1e-2 .. 1e2 along random orthogonal directions, mean uniform in [-3, 3]^50."""
+    from targets.analytic import GaussianMixture, random_rotation
+
+    d = 50
+    q = random_rotation(d, 11)
+    covariance = q @ np.diag(np.logspace(-2, 2, d)) @ q.T
+    mean = np.random.default_rng(12).uniform(-3, 3, d)
+    return GaussianMixture(mean[None], covariance[None])
+
+
+def _rotated_many_well():
+    from targets.analytic import ManyWell, Rotated, random_rotation
+
+    return Rotated(ManyWell(16), random_rotation(16, 21))
+
+
+def _banana():
+    from targets.analytic import Banana
+
+    return Banana(10, curvature=0.1, scale=10.0)
+
+
 EVIDENCE_PROBLEMS: dict[str, EvidenceProblem] = {
     p.name: p
     for p in (
@@ -149,9 +172,22 @@ EVIDENCE_PROBLEMS: dict[str, EvidenceProblem] = {
             "funnel10", "10-d Neal's funnel (scale 3), log density shifted by +3.7",
             _funnel, offset=3.7, half_widths=(15.0,) + (300.0,) * 9,
         ),
+        EvidenceProblem(
+            "gauss50r", "50-d Gaussian, condition number 1e4, random orthogonal directions, log density shifted by +2.5",
+            _rotated_gaussian, offset=2.5, half_widths=(40.0,),
+        ),
+        EvidenceProblem(
+            "manywell16r", "16-d Many Well (8 double-well pairs, 256 modes) under a random rotation",
+            _rotated_many_well, offset=0.0, half_widths=(8.0,),
+        ),
+        EvidenceProblem(
+            "banana10", "10-d banana (Haario's twisted Gaussian, b = 0.1, scale 10), log density shifted by -1.3",
+            _banana, offset=-1.3, half_widths=(50.0, 150.0) + (50.0,) * 8,
+        ),
     )
 }
-"""The registered evidence problems by name: `manywell32`, `gmm40`, `funnel10`."""
+"""The registered evidence problems by name: `manywell32`, `gmm40`, `funnel10`, and the geometry classes
+`gauss50r` (ill-conditioned and correlated), `manywell16r` (multimodal along turned axes), `banana10` (curved)."""
 
 
 def get_evidence_problem(name: str) -> EvidenceProblem:

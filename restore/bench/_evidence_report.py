@@ -68,14 +68,34 @@ def _settings(cfg) -> list[str]:
         f"- **restore-autosample**: `restore.autosample(logdensity, key, box=box, num_lanes={cfg.restore_lanes}, "
         f"num_steps={cfg.restore_steps})`; evaluations as it reports them (all stages).",
         f"- **smc-hmc**: BlackJAX adaptive tempered SMC from the uniform prior on the box, {cfg.smc_particles} particles, "
-        f"target ESS 0.5, {cfg.smc_mcmc_steps} HMC moves per temperature (mass matrix from the particles, step size "
-        "adapted to acceptance 0.65); log Z is the sum of the log likelihood increments. No standard error from one run.",
+        f"target ESS 0.5, {cfg.smc_mcmc_steps} HMC moves per temperature (diagonal inverse mass matrix from the particles' "
+        "variances, step size adapted to acceptance 0.65); log Z is the sum of the log likelihood increments. No standard "
+        "error from one run.",
+        "- **smc-hmc-dense**: the same with the particles' full covariance as the inverse mass matrix (for correlated targets).",
         f"- **dynesty**: `NestedSampler(nlive={cfg.nested_live}, bound=\"multi\", sample=\"auto\")`, uniform prior on the "
         f"box, default `dlogz`, stopped after {cfg.nested_seconds:g} s of sampling at the latest (`capped`); "
         "log Z = logz + log(box volume), standard error `logzerr`.",
+        f"- **nuts**: BlackJAX NUTS, `window_adaptation` with a dense mass matrix, {cfg.nuts_chains} chains from starts "
+        f"uniform in the box, {cfg.nuts_warmup} warm-up and {cfg.nuts_kept} kept steps each; moments only (no log Z), "
+        "standard errors ArviZ's Monte Carlo standard errors, `reliable` when every R-hat < 1.01 and every bulk ESS > 400 "
+        "(Stan's rule). Evaluations: gradients of all steps.",
     ]
     names = [r.name for r in cfg.runners()]
     return [line for line in lines if any(line.startswith(f"- **{name}**") for name in names)]
+
+
+def _box_text(lower: np.ndarray, upper: np.ndarray) -> str:
+    """The box as runs of equal bounds: `[-5, 5]^32`, or `[-15, 15] (x0), [-300, 300]^9 (x1..x9)`."""
+    runs: list[list] = []  # [lower, upper, first coordinate, count]
+    for i, (a, b) in enumerate(zip(lower.tolist(), upper.tolist(), strict=True)):
+        if runs and runs[-1][:2] == [a, b]:
+            runs[-1][3] += 1
+        else:
+            runs.append([a, b, i, 1])
+    if len(runs) == 1:
+        return f"[{runs[0][0]:g}, {runs[0][1]:g}]^{runs[0][3]}"
+    text = lambda a, b, i, n: f"[{a:g}, {b:g}] (x{i})" if n == 1 else f"[{a:g}, {b:g}]^{n} (x{i}..x{i + n - 1})"  # noqa: E731
+    return ", ".join(text(*run) for run in runs)
 
 
 def markdown(result) -> str:
@@ -108,10 +128,7 @@ def markdown(result) -> str:
             continue
         problem = get_evidence_problem(name)
         ref = result.references.get(name)
-        lower, upper = problem.box
-        box = f"[{lower[0]:g}, {upper[0]:g}]^{problem.dim}" if np.all(upper == upper[0]) else ", ".join(
-            f"[{a:g}, {b:g}]" for a, b in dict.fromkeys(zip(lower.tolist(), upper.tolist(), strict=True))
-        ) + " (first coordinate, then the others)"
+        box = _box_text(*problem.box)
         lines += [
             "",
             f"### {name}: {problem.title}",

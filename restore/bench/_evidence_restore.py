@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from typing import Any
 
 import jax
 import numpy as np
@@ -83,19 +84,21 @@ class AutosampleRunner(EvidenceRunner):
 
     family = "restore"
 
-    def __init__(self, lanes: int = 1024, steps: int = 1000, max_stages: int = 6, name: str = "restore-autosample"):
-        if lanes < 4 or steps < 2 or max_stages < 1:
-            raise ValueError(f"need lanes >= 4, steps >= 2 and max_stages >= 1, got {lanes}, {steps} and {max_stages}")
-        self.lanes, self.steps, self.max_stages, self.name = int(lanes), int(steps), int(max_stages), name
+    def __init__(self, lanes: int = 1024, steps: int = 1000, max_stages: int | None = None, name: str = "restore-autosample"):
+        if lanes < 4 or steps < 2 or (max_stages is not None and max_stages < 1):
+            raise ValueError(f"need lanes >= 4, steps >= 2 and max_stages >= 1 (or None: autosample's default), got {lanes}, {steps} and {max_stages}")
+        self.lanes, self.steps, self.name = int(lanes), int(steps), name
+        self.max_stages = None if max_stages is None else int(max_stages)
 
     def run(self, problem, key: PRNGKeyArray) -> EvidenceOutput:
         import restore
 
         lower, upper = problem.box
+        stages: dict[str, Any] = {} if self.max_stages is None else {"max_stages": self.max_stages}
         with warnings.catch_warnings(record=True) as caught, Stopwatch() as clock:
             warnings.simplefilter("always")
             result = restore.autosample(
                 problem.logdensity, key, box=(lower, upper), num_lanes=self.lanes, num_steps=self.steps,
-                observables=problem.observables, max_stages=self.max_stages, progress=False,
+                observables=problem.observables, progress=False, **stages,
             )
         return read_result(result, problem, int(result.evaluations), clock, caught)

@@ -33,8 +33,9 @@ class TemperedSMCRunner(EvidenceRunner):
     sum of the log likelihood increments (the prior is normalised, so nothing is added).
     Every temperature moves each particle with `mcmc_steps` HMC steps of
     `problem.hmc_steps` leapfrog steps, with the usual particle-based tuning between
-    temperatures: the inverse mass matrix is the particles' diagonal covariance, and the
-    step size (in those whitened units) is multiplied by `exp(2 (acceptance - 0.65))`.
+    temperatures: the inverse mass matrix is the particles' diagonal covariance (their full
+    covariance with `dense=True`, for correlated targets), and the step size (in those
+    whitened units) is multiplied by `exp(2 (acceptance - 0.65))`.
 
     Evaluations: per temperature and particle, one for the ESS solve, one for the HMC
     state at the start of the moves, `mcmc_steps * hmc_steps` leapfrog gradients and one
@@ -44,14 +45,17 @@ class TemperedSMCRunner(EvidenceRunner):
 
     family = "smc"
 
-    def __init__(self, particles: int = 4096, mcmc_steps: int = 5, target_ess: float = 0.5, max_temperatures: int = 500, name: str = "smc-hmc"):
+    def __init__(
+        self, particles: int = 4096, mcmc_steps: int = 5, target_ess: float = 0.5, max_temperatures: int = 500,
+        dense: bool = False, name: str = "smc-hmc",
+    ):
         if particles < 2 or mcmc_steps < 1 or not 0 < target_ess < 1 or max_temperatures < 1:
             raise ValueError(
                 f"need particles >= 2, mcmc_steps >= 1, 0 < target_ess < 1 and max_temperatures >= 1; "
                 f"got {particles}, {mcmc_steps}, {target_ess}, {max_temperatures}"
             )
         self.particles, self.mcmc_steps, self.target_ess = int(particles), int(mcmc_steps), float(target_ess)
-        self.max_temperatures, self.name = int(max_temperatures), name
+        self.max_temperatures, self.dense, self.name = int(max_temperatures), bool(dense), name
         self._programs: dict[str, object] = {}
 
     def unavailable(self) -> str | None:
@@ -86,7 +90,15 @@ class TemperedSMCRunner(EvidenceRunner):
         kernel = build_kernel(
             logprior, loglikelihood, blackjax.hmc.build_kernel(), blackjax.hmc.init, resampling.systematic, self.target_ess
         )
-        steps, mcmc_steps, cap = problem.hmc_steps, self.mcmc_steps, self.max_temperatures
+        steps, mcmc_steps, cap, dense = problem.hmc_steps, self.mcmc_steps, self.max_temperatures, self.dense
+
+        def inverse_mass(particles, weights):
+            """The particles' weighted variances, or with `dense` their covariance (a small ridge keeps it positive)."""
+            mean = weights @ particles
+            centred = particles - mean
+            if not dense:
+                return jnp.maximum(weights @ centred**2, 1e-12)
+            return (centred.T * weights) @ centred + 1e-12 * jnp.eye(particles.shape[1])
 
         @jax.jit
         def loop(key, particles):
@@ -101,21 +113,18 @@ class TemperedSMCRunner(EvidenceRunner):
                 }
                 state, info = kernel(sub, c.state, mcmc_steps, params)
                 acceptance = jnp.mean(info.update_info.acceptance_rate)
-                w = state.weights
-                mean = w @ state.particles
-                variance = w @ (state.particles - mean) ** 2
                 return _Loop(
                     key, state, c.log_z + info.log_likelihood_increment, c.temperatures + 1,
-                    c.step_size * jnp.exp(2.0 * (acceptance - 0.65)), jnp.maximum(variance, 1e-12), acceptance,
+                    c.step_size * jnp.exp(2.0 * (acceptance - 0.65)), inverse_mass(state.particles, state.weights), acceptance,
                 )
 
             def going(c: _Loop) -> Array:
                 return (c.state.tempering_param < 1.0) & (c.temperatures < cap)
 
-            variance = jnp.var(particles, axis=0)
+            uniform = jnp.full(particles.shape[:1], 1.0 / particles.shape[0], particles.dtype)
+            start = inverse_mass(particles, uniform) if dense else jnp.var(particles, axis=0)
             init = _Loop(
-                key, smc_init(particles), jnp.zeros(()), jnp.zeros((), jnp.int32),
-                jnp.asarray(0.5 * d**-0.25), variance, jnp.zeros(()),
+                key, smc_init(particles), jnp.zeros(()), jnp.zeros((), jnp.int32), jnp.asarray(0.5 * d**-0.25), start, jnp.zeros(()),
             )
             return jax.lax.while_loop(going, body, init)
 

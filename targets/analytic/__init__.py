@@ -24,4 +24,6 @@ from ._gaussian_mixture import GaussianMixture as GaussianMixture
 from ._many_well import ManyWell as ManyWell
 from ._pss_image import AnalyticImage as AnalyticImage
 from ._ring import Ring as Ring
+from ._rotated import Rotated as Rotated
+from ._rotated import random_rotation as random_rotation
 from ._student_t_mixture import StudentTMixture as StudentTMixture

@@ -18,6 +18,7 @@ from restore.bench import (
     EvidenceOutput,
     EvidenceProblem,
     EvidenceRunner,
+    NUTSRunner,
     TemperedSMCRunner,
     get_evidence_problem,
     run_evidence,
@@ -104,11 +105,39 @@ def test_score_signs_and_z_scores():
 # ------------------------------------------------------------------------------- evaluation counts
 
 
-def test_smc_counts_every_evaluation():
+@pytest.mark.parametrize("dense", [False, True])
+def test_smc_counts_every_evaluation(dense):
     problem = _counted("gmm40")
-    out = TemperedSMCRunner(particles=16, mcmc_steps=2).run(problem, jax.random.key(0))
+    out = TemperedSMCRunner(particles=16, mcmc_steps=2, dense=dense).run(problem, jax.random.key(0))
     assert out.evaluations == problem.logdensity.count > 0
     assert out.status == "ok" and math.isfinite(out.log_z)
+
+
+def _gaussian_problem(means, half_width: float) -> EvidenceProblem:
+    """A small problem of equal-weight unit Gaussians at `means` (one mean: a Gaussian)."""
+    from targets.analytic import GaussianMixture
+
+    means = np.asarray(means, np.float64)
+    return EvidenceProblem(f"gaussians{len(means)}", "unit Gaussians", lambda: GaussianMixture(means, 1.0), 1.5, (half_width,))
+
+
+def test_nuts_gives_moments_with_honest_errors_and_its_users_verdict():
+    """On a 3-d Gaussian NUTS's means are within 5 of ArviZ's standard errors and the run passes
+    Stan's R-hat and ESS rule; its evaluations are its gradients."""
+    problem = _gaussian_problem([[1.0, -2.0, 0.5]], 5.0)
+    out = NUTSRunner(chains=4, warmup=300, kept=300).run(problem, jax.random.key(1))
+    assert math.isnan(out.log_z) and out.status == "ok"
+    z = (out.mean - problem.target.mean) / out.mean_se
+    assert np.all(np.abs(z) < 5), z
+    assert out.reliable is True and "R-hat" in out.notes
+    assert out.evaluations >= 4 * 600  # at least one gradient per step
+
+
+def test_nuts_chains_in_separate_modes_are_marked_unreliable():
+    """The control: two modes 20 apart, chains that start in both and never cross, so R-hat is far above 1.01."""
+    problem = _gaussian_problem([[-10.0, 0.0], [10.0, 0.0]], 15.0)
+    out = NUTSRunner(chains=4, warmup=200, kept=200).run(problem, jax.random.key(0))
+    assert out.reliable is False, out.notes
 
 
 # ---------------------------------------------------------------------------------------- the suite
@@ -120,8 +149,8 @@ def test_files_are_written(tiny):
     assert "## Methods" in text and "## Machine" in text and "Exact log Z" in text and "dynesty" in text
     with open(out / "evidence.csv") as f:
         rows = list(csv.DictReader(f))
-    assert len(rows) == len(result.rows) == 4
-    assert {r["method"] for r in rows} == {"restore-laplace", "restore-autosample", "smc-hmc", "dynesty"}
+    assert len(rows) == len(result.rows) == 6
+    assert {r["method"] for r in rows} == {"restore-laplace", "restore-autosample", "smc-hmc", "smc-hmc-dense", "dynesty", "nuts"}
 
 
 def test_numbers_are_finite(tiny):
@@ -129,7 +158,7 @@ def test_numbers_are_finite(tiny):
     for r in result.rows:
         assert r["log_z_true"] == get_evidence_problem(r["problem"]).log_normalising_constant
         if r["status"] in ("ok", "capped"):
-            assert math.isfinite(r["log_z"]) and r["evaluations"] > 0, r
+            assert math.isfinite(r["log_z"]) != (r["family"] == "mcmc") and r["evaluations"] > 0, r  # NUTS gives no log Z
             assert 0 <= r["run_time"] <= r["wall_time"], r
             assert math.isfinite(r["mean_error"]) and math.isfinite(r["second_moment_error"]), r
     done = {(r["problem"], r["method"]) for r in result.rows if r["status"] in ("ok", "capped")}
@@ -198,4 +227,4 @@ def test_config_errors():
         EvidenceConfig("x", problems=("gmm2",))
     with pytest.raises(ValueError, match="seeds"):
         EvidenceConfig("x", seeds=0)
-    assert [r.name for r in EvidenceConfig.tiny().replace(samplers=("smc", "dyn")).runners()] == ["smc-hmc", "dynesty"]
+    assert [r.name for r in EvidenceConfig.tiny().replace(samplers=("smc", "dyn")).runners()] == ["smc-hmc", "smc-hmc-dense", "dynesty"]
