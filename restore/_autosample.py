@@ -70,6 +70,7 @@ from ._warnings import AUTOSAMPLE_ADVICE, advising
 from .local import AbstractLocalKernel, CorrelatedRandomWalk, GuidedRandomWalk, RandomWalk
 from .regeneration import (
     AbstractRegeneration,
+    ConditionalGaussian,
     DiagonalMixture,
     Mixture,
     ProductMixture,
@@ -274,6 +275,9 @@ def typical_scale(regeneration: AbstractRegeneration) -> np.ndarray:
     if isinstance(regeneration, ProductMixture):  # (d, K) scales and log weights, one mixture per coordinate
         scales, weights = np.asarray(regeneration.scales), np.exp(np.asarray(regeneration.log_weights))
         return np.array([_weighted_median(s[:, None], w)[0] for s, w in zip(scales, weights, strict=True)])
+    if isinstance(regeneration, ConditionalGaussian):  # each coordinate's spread given the others, at a typical draw
+        draws = distribution_draws(regeneration, jax.random.key(0), 2048)
+        return np.median(np.asarray(regeneration.conditional_scales(draws)), axis=0)
     if isinstance(regeneration, RotatedProductMixture):  # x = centre + A^{-1} y: each axis of x mixes the y's
         within = typical_scale(regeneration.product)
         return np.sqrt(np.asarray(regeneration.inverse, np.float64) ** 2 @ within**2)

@@ -12,11 +12,12 @@ regeneration distribution with density `u`. Every distribution here is an
 
 Available: `Gaussian`, `StudentT`, `UniformBox`, `UniformTorus`, `Mixture`,
 `DiagonalMixture` (axis-aligned components, `O(K d)` per evaluation),
+`ConditionalGaussian` (each coordinate Gaussian given the earlier ones: curved targets),
 `ProductMixture` (a product of one-dimensional mixtures), `RotatedProductMixture`
 (the same along other directions, found by `independent_axes`), and `laplace_mixture`
 (with `find_modes` / `LaplaceModes` / `mixture_from_modes`) which builds a
 mixture of Laplace approximations at the modes of a target found by multi-start
-optimisation. `fit_mixture`, `fit_product`, `fit_rotated_product` and `choose_regeneration` fit
+optimisation. `fit_mixture`, `fit_product`, `fit_rotated_product`, `fit_conditional` and `choose_regeneration` fit
 regenerations to weighted draws of the target (what `restore.autosample` does
 in stages).
 """
@@ -25,6 +26,8 @@ from ._base import AbstractRegeneration as AbstractRegeneration
 from ._choose import Candidate as Candidate
 from ._choose import Choice as Choice
 from ._choose import choose_regeneration as choose_regeneration
+from ._conditional import ConditionalGaussian as ConditionalGaussian
+from ._conditional_fit import fit_conditional as fit_conditional
 from ._diagonal_mixture import DiagonalMixture as DiagonalMixture
 from ._fit import Fit as Fit
 from ._fit import fit_mixture as fit_mixture
@@ -56,6 +59,7 @@ __all__ = [
     "AbstractRegeneration",
     "Candidate",
     "Choice",
+    "ConditionalGaussian",
     "DiagonalMixture",
     "Fit",
     "Gaussian",
@@ -69,6 +73,7 @@ __all__ = [
     "UniformTorus",
     "choose_regeneration",
     "find_modes",
+    "fit_conditional",
     "fit_mixture",
     "fit_product",
     "fit_rotated_product",

@@ -25,11 +25,12 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ._conditional_fit import conditional_cost, fit_conditional
 from ._fit import Fit, ProductData, fit_binned_product, fit_mixture, product_data, rotated
 from ._independent_axes import independent_axes
 
 #: The families tried by default, cheapest first.
-FAMILIES = ("product", "diagonal", "diagonal-t", "rotated-product", "full", "full-t")
+FAMILIES = ("product", "diagonal", "diagonal-t", "rotated-product", "conditional", "conditional-t", "full", "full-t")
 #: The families fitted as products of one-dimensional mixtures (on binned coordinates).
 PRODUCTS = ("product", "rotated-product")
 #: Degrees of freedom of the Student-t families.
@@ -66,6 +67,11 @@ class Choice(NamedTuple):
 #: estimate; the measurements behind the value are in docs/how-to/regeneration.md).
 AXES_GAIN = 0.25
 
+#: The Student-t version of the conditional family is fitted only when the Gaussian one trails the
+#: best candidate by at most this many nats per coordinate (about the most that Student-t tails
+#: gained over Gaussian ones per coordinate on heavy-tailed draws).
+TAIL_GAIN = 0.25
+
 #: EM iterations of a mixture candidate during the search (the chosen one is refitted to convergence).
 SEARCH_ITERATIONS = 30
 
@@ -99,6 +105,8 @@ def _fit(family: str, x, w, k: int, seed: int, start: Fit | None = None, binned:
             raise ValueError("a rotated product is fitted to binned draws in its own coordinates")
         fit = fit_binned_product(product_data(x, w) if binned is None else binned, k, seed=seed, start=start)
         return fit if axes is None else rotated(fit, *axes)
+    if family.startswith("conditional"):
+        return fit_conditional(x, w, df=STUDENT_DF if family.endswith("-t") else None)
     covariance = "diagonal" if family.startswith("diagonal") else "full"
     df = STUDENT_DF if family.endswith("-t") else None
     init: dict = {}
@@ -111,6 +119,8 @@ def _fit(family: str, x, w, k: int, seed: int, start: Fit | None = None, binned:
 def _cost(family: str, k: int, d: int) -> int:
     if family == "rotated-product":
         return d * d + k * d
+    if family.startswith("conditional"):
+        return conditional_cost(d)
     return k * d * d if family.startswith("full") else k * d
 
 
@@ -138,7 +148,9 @@ def choose_regeneration(
         groups: `(n,)` group labels (lanes, chains); whole groups are held out.
         families: among `"product"`, `"diagonal"`, `"diagonal-t"`, `"rotated-product"`
             (a product along the directions in which the draws are most nearly
-            independent: `RotatedProductMixture`), `"full"`, `"full-t"`.
+            independent: `RotatedProductMixture`), `"conditional"`, `"conditional-t"`
+            (each coordinate Gaussian, or Student-t, given the earlier ones, a curved fit:
+            `ConditionalGaussian`; one component), `"full"`, `"full-t"`.
             A Student-t family is tried from the number of components its Gaussian family
             scored best with (when that family is tried too), doubling while it improves;
             so is a rotated product from the product's.
@@ -214,7 +226,7 @@ def choose_regeneration(
             continue
         on = np.flatnonzero(~test) if family in PRODUCTS else train
         prepared = products.get(family)
-        largest = min(max_components, max(1, on.size // (4 * d + 4)))
+        largest = 1 if family.startswith("conditional") else min(max_components, max(1, on.size // (4 * d + 4)))
         base = _base(family)
         k, start = 1, None
         if base != family and base in families:  # the Student-t version from the size its Gaussian family liked best
@@ -222,6 +234,8 @@ def choose_regeneration(
             if scored_base:
                 k = max(scored_base, key=lambda c: c.score).num_components
                 start = fits.get((base, k)) if family.endswith("-t") else None  # (a rotated product fits other coordinates)
+        if family == "conditional-t" and _far_behind([c for c in candidates if c.family == "conditional"], candidates, d):
+            continue  # heavier tails will not close the gap
         best_here, gain = -math.inf, 0.0
         while k <= largest and _cost(family, k, d) <= max_cost:
             try:
@@ -276,6 +290,11 @@ def choose_regeneration(
     return Choice(fit, tuple(candidates))
 
 
+def _far_behind(family: list[Candidate], candidates: list[Candidate], d: int) -> bool:
+    """Whether a family's candidates all trail the best candidate by more than `TAIL_GAIN` nats per coordinate."""
+    return bool(family) and max(c.score for c in family) < max(c.score for c in candidates) - TAIL_GAIN * d
+
+
 def default_max_cost(d: int) -> int:
     """The largest cost (multiply-adds per log density) a candidate may have by default."""
     return max(4096, 64 * int(d))
@@ -304,5 +323,5 @@ def _fit_name(family: str) -> str:
     """The `Fit.family` label of a family name."""
     if family == "rotated-product":
         return "rotated product"
-    base = "diagonal" if family.startswith("diagonal") else "full" if family.startswith("full") else "product"
+    base = next((b for b in ("diagonal", "full", "conditional") if family.startswith(b)), "product")
     return base + (f" student-t(df={STUDENT_DF:g})" if family.endswith("-t") else "")
