@@ -21,11 +21,10 @@ import math
 
 import jax.numpy as jnp
 import numpy as np
-from scipy.special import gammaln
 
 from ._conditional import LOG_VARIANCE_RANGE, ConditionalGaussian, mean_features, variance_features
 from ._diagonal_mixture import check_df
-from ._fit import Fit, _prepare, single_threaded
+from ._fit import Fit, _prepare, _student_const, single_threaded
 
 #: Alternations of the mean and log-variance steps per coordinate (at most).
 ITERATIONS = 25
@@ -45,7 +44,7 @@ def fit_conditional(draws, weights, *, df: float | None = None, iterations: int 
     """Fit a `ConditionalGaussian` (Student-t conditionals with `df`) to weighted draws `(n, d)` by weighted maximum likelihood."""
     x, w = _prepare(draws, weights)
     df = check_df(df)
-    n, d = x.shape
+    d = x.shape[1]
     loc = w @ x / w.sum()
     scale = np.sqrt(w @ (x - loc) ** 2 / w.sum())
     if not np.all(scale > 0):
@@ -92,7 +91,8 @@ def _fit_coordinate(
     a = np.zeros(f.shape[1])
     precision = np.ones_like(w)  # the Student-t's latent precisions (1 for Gaussian conditionals)
     for _ in range(iterations):
-        v = np.clip(g @ c, low, high)
+        raw = g @ c
+        v = np.clip(raw, low, high)
         if df is not None and np.any(a):
             precision = (df + 1.0) / (df + (target - f @ a) ** 2 * np.exp(-v))
         omega = w * precision * np.exp(-v)
@@ -100,7 +100,7 @@ def _fit_coordinate(
         a = _solve(lhs, (f.T * omega) @ target)
         r2 = precision * (target - f @ a) ** 2
         e = r2 * np.exp(-v)
-        inside = (g @ c > low) & (g @ c < high)  # the clipped rows do not move with c
+        inside = (raw > low) & (raw < high)  # the clipped rows do not move with c
         grad = g.T @ (w * (1.0 - e) * inside) + penalty_c * c
         hess = (g.T * (w * e * inside)) @ g + np.diag(penalty_c + 1e-12 * total)
         step = _solve(hess, grad)
@@ -124,8 +124,7 @@ def _log_density(z2: np.ndarray, v: np.ndarray, df: float | None) -> np.ndarray:
     """The conditional log densities of standardised residuals `z2` (squared) with log variances `v`."""
     if df is None:
         return -0.5 * (z2 + v) - 0.5 * math.log(2 * math.pi)
-    const = gammaln(0.5 * (df + 1)) - gammaln(0.5 * df) - 0.5 * math.log(df * math.pi)
-    return const - 0.5 * v - 0.5 * (df + 1) * np.log1p(z2 / df)
+    return _student_const(df, 1) - 0.5 * v - 0.5 * (df + 1) * np.log1p(z2 / df)
 
 
 def _solve(lhs: np.ndarray, rhs: np.ndarray) -> np.ndarray:
