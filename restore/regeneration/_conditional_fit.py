@@ -5,13 +5,14 @@ with a mean linear in `[1, y_<i, y_<i^2]` and a log variance linear in `[1, y_<i
 weighted log likelihood is concave in either set of coefficients with the other fixed, so
 the fit alternates a weighted least-squares step for the mean with a damped Newton step
 for the log variance (a gamma regression with log link on the squared residuals), each
-with a weak ridge that keeps the systems well posed. Whether a coordinate's mean follows the
-earlier coordinates at all is decided by the Bayesian information criterion against a
-constant mean: where the spread shrinks exponentially (a funnel's neck), a mean slope that is
-only noise would, carried beyond the draws, put the conditional many of its own standard
-deviations off. Student-t conditionals (`df`) are fitted
-the same way on the draws weighted by their latent precisions (expectation-conditional
-maximisation, as for the Student-t mixtures).
+with a weak ridge that keeps the systems well posed. Whether a coordinate's mean, and whether
+its log variance, follow the earlier coordinates at all is decided by the Bayesian information
+criterion among the four choices (each constant or following): where the spread shrinks
+exponentially (a funnel's neck), a mean slope that is only noise would, carried beyond the
+draws, put the conditional many of its own standard deviations off; and noise slopes of the
+log variance, carried into the tails, make the fit thinner than the target there (long tours).
+Student-t conditionals (`df`) are fitted the same way on the draws weighted by their latent
+precisions (expectation-conditional maximisation, as for the Student-t mixtures).
 """
 
 from __future__ import annotations
@@ -53,16 +54,21 @@ def fit_conditional(draws, weights, *, df: float | None = None, iterations: int 
     features, spread_features = mean_features(y), variance_features(y)
     a = np.zeros((d, 2 * d + 1))
     c = np.zeros((d, d + 1))
-    ridge = RIDGE * w.sum()
+    ridge, log_n = RIDGE * w.sum(), math.log(w.sum())
     for i in range(d):
-        g = spread_features[:, : i + 1]
-        a[i, :1], c[i, : i + 1], constant = _fit_coordinate(features[:, :1], g, y[:, i], w, ridge, iterations, df)
-        if i == 0:
-            continue
-        mean_cols = np.r_[0, 1 + np.arange(i), 1 + d + np.arange(i)]
-        following, spread, fitted = _fit_coordinate(features[:, mean_cols], g, y[:, i], w, ridge, iterations, df, c[i, : i + 1])
-        if 2.0 * (fitted - constant) > 2 * i * math.log(w.sum()):  # the BIC of the 2 i slopes
-            a[i, mean_cols], c[i, : i + 1] = following, spread
+        constant = np.zeros(1, np.int64)
+        mean_cols = np.r_[0, 1 + np.arange(i), 1 + d + np.arange(i)]  # [1, y_<i, y_<i^2]
+        best, start = -math.inf, None
+        for mean in (constant, mean_cols) if i else (constant,):
+            for spread in (1, i + 1) if i else (1,):
+                g = spread_features[:, :spread]
+                m, v, fitted = _fit_coordinate(features[:, mean], g, y[:, i], w, ridge, iterations, df, start if spread > 1 else None)
+                if mean is constant and spread > 1:
+                    start = v  # the full mean's spread starts from the constant mean's
+                bic = fitted - 0.5 * (mean.size + spread) * log_n  # the Bayesian information criterion, as a log likelihood
+                if bic > best:
+                    best, a[i], c[i] = bic, 0.0, 0.0
+                    a[i, mean], c[i, :spread] = m, v
     return _conditional_fit(loc, scale, a, c, df)
 
 
