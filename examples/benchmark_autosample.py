@@ -57,7 +57,7 @@ class Profile:
     """Where an autosample call's time went: timed parts (wrapped functions of `restore._autosample`)
     and the XLA compilations inside each (JAX's backend-compile events, by the time they ended)."""
 
-    PARTS = ("seed_draws", "laplace_candidates", "choose_regeneration", "sample")
+    PARTS = ("seed_draws", "laplace_candidates", "choose_regeneration", "refit_regeneration", "sample")
 
     def __init__(self) -> None:
         self.parts: list[tuple[str, float, float]] = []  # (name, start, end), perf_counter

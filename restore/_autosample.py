@@ -14,7 +14,12 @@ target. `autosample` builds `u` in stages, population-Monte-Carlo style:
 3. **Stop** when a stage's tours are healthy: the Pareto shape `k_hat` of the tour
    durations and of the importance weights is small, no tour outlasted the stage and no
    handful of tours holds most of the time (`TourStatistics.heavy_tailed`), so the tours
-   are close to i.i.d. exponential and the error bars can be trusted.
+   are close to i.i.d. exponential and the error bars can be trusted. When the first stage
+   is healthy, its regeneration was still fitted to the seeding chains, which have not
+   equilibrated; where its tours are still far from exponential (`REFIT_SHARE`), the same
+   family and size are fitted again to that stage's tour draws (`refit_regeneration`), and
+   the final run takes that fit where it scores better on held-out lanes (it usually does:
+   they are the target's own draws).
 4. **Final run.** A fresh run with the chosen `u` frozen before it starts, with the full
    budget and the user's observables. Its estimates are the result; the stages only
    chose `u`. Because `u` is fixed before the final run begins, its tours are i.i.d. given
@@ -79,12 +84,15 @@ from .regeneration import (
     UniformBox,
     choose_regeneration,
 )
-from .regeneration._choose import FAMILIES, padded_size
+from .regeneration._choose import FAMILIES, padded_size, refit_regeneration
 
 #: A stage is healthy when the tail shape of its tour durations is below this...
 HEALTHY_DURATION_K = 0.3
 #: ...and that of its importance weights below this.
 HEALTHY_IMPORTANCE_K = K_HAT_LIMIT
+#: A healthy first stage's family is fitted again to its tours when their effective number is below
+#: this share of their number (exponential tours have 1/2; `TourStatistics.effective_num_tours`).
+REFIT_SHARE = 0.4
 #: Degrees of freedom of the defensive component built from a box or a scale.
 DEFENSIVE_DF = 3.0
 #: Seeding starts on which the log density's coordinates are checked (`check_coordinates`).
@@ -507,12 +515,18 @@ def autosample(
         tried.append(_Tried(report, choice.fit, u, log_z, _coverage_sample(draws, weights)))
         if report.healthy or not keep_adapting([t.report for t in tried], max_stages):
             break
-        draws = result.draws.reshape(-1, d)
-        weights = result.draw_weights.reshape(-1)
-        groups = np.broadcast_to(np.arange(result.num_lanes), result.draw_weights.shape).reshape(-1)
+        draws, weights, groups = _stage_draws(result, d)
 
-    report, fit, u, log_z, chosen_from = tried[final_stage([t.report for t in tried])]
+    index = final_stage([t.report for t in tried])
+    report, fit, u, log_z, chosen_from = tried[index]
     clock = time.perf_counter()
+    if report.healthy and index == 0 and report.effective_tours < REFIT_SHARE:
+        # The seeding chains have not equilibrated, so a healthy first stage still regenerates from a
+        # fit to draws that are not the target's: fitted again to that stage's tours where that scores better.
+        draws, weights, groups = _stage_draws(result, d)
+        refit = refit_regeneration(fit, draws, weights, groups, seed=stage + 1).fit
+        if refit is not fit:
+            fit, u, chosen_from = refit, regeneration_from(refit), _coverage_sample(draws, weights)
     sampler, piloted = sampler_for(u, log_z)
     with advising(AUTOSAMPLE_ADVICE):
         result = sample(
@@ -572,6 +586,12 @@ def coverage_caveat(logdensity, regeneration: AbstractRegeneration, result: Samp
         f"(a mode or region the regeneration leaves to its defensive component): {COVERAGE_REMEDY}",
         int(w.size),
     )
+
+
+def _stage_draws(result: SampleResult, d: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A stage's stored draws `(n, d)`, their weights and their lanes (the groups held out together)."""
+    groups = np.broadcast_to(np.arange(result.num_lanes), result.draw_weights.shape).reshape(-1)
+    return np.asarray(result.draws).reshape(-1, d), np.asarray(result.draw_weights).reshape(-1), groups
 
 
 def _coverage_sample(draws, weights) -> tuple[np.ndarray, np.ndarray]:

@@ -177,32 +177,14 @@ def choose_regeneration(
     Returns:
         The chosen candidate refitted on all (subset) draws, and the scored candidates.
     """
-    x = np.asarray(draws, np.float64)
-    w = np.asarray(weights, np.float64).reshape(-1)
-    g = np.asarray(groups).reshape(-1)
-    d = x.shape[1]
     unknown = [f for f in families if f not in FAMILIES]
     if unknown or not families:
         raise ValueError(f"families must be a non-empty subset of {FAMILIES}, got {tuple(families)}")
-    rng = np.random.default_rng(seed)
-    ok = np.isfinite(w) & (w > 0) & np.all(np.isfinite(x), axis=1)
-    x, w, g = x[ok], w[ok], g[ok]
-    if x.shape[0] > max_draws:
-        pick = rng.choice(x.shape[0], max_draws, replace=False)
-        x, w, g = x[pick], w[pick], g[pick]
-    labels = np.unique(g)
-    if labels.size < 4:
-        raise ValueError(f"need draws from at least 4 groups (lanes or chains) to hold some out, got {labels.size}")
-    held = rng.choice(labels, max(1, round(holdout * labels.size)), replace=False)
-    test = np.isin(g, held)
-    train, scored = _at_most(np.flatnonzero(~test), mixture_draws, rng), _at_most(np.flatnonzero(test), mixture_draws, rng)
+    split = _split(draws, weights, groups, holdout, max_draws, mixture_draws, seed)
+    x, w, test, train, rng = split.x, split.w, split.test, split.train, split.rng
+    d = x.shape[1]
     max_cost = default_max_cost(d) if max_cost is None else int(max_cost)
     sizes = dict(sizes or {})
-
-    def held_out_score(fit: Fit) -> float:
-        """The weighted mean log density of the held-out draws under `fit` (`-inf` where it vanishes)."""
-        logp = fit.log_prob(x[scored])
-        return float(np.sum(w[scored] * logp) / np.sum(w[scored])) if np.all(np.isfinite(logp)) else -math.inf
 
     def cost(family: str, k: int) -> int:
         return _cost(family, padded_size(k, sizes.get(_fit_name(family))), d)
@@ -247,7 +229,7 @@ def choose_regeneration(
             except (ValueError, np.linalg.LinAlgError):
                 break
             start = None
-            score = held_out_score(fit)
+            score = split.score(fit)
             candidates.append(Candidate(fit.family, k, cost(family, k), score))
             fits[family, k] = fit
             if score < best_here + tolerance / 4:  # no longer improving: larger K will not either
@@ -261,7 +243,7 @@ def choose_regeneration(
             k *= 2
     given = {}
     for fit in extra:
-        score = held_out_score(fit)
+        score = split.score(fit)
         k = fit.num_components
         size = padded_size(k, sizes.get(fit.family))
         candidate = Candidate(fit.family, k, fit.cost * size // k, score)
@@ -291,6 +273,78 @@ def choose_regeneration(
     return Choice(fit, tuple(candidates))
 
 
+def refit_regeneration(
+    fit: Fit, draws, weights, groups, *, holdout: float = 0.25, max_draws: int = 100_000, mixture_draws: int = 8192, seed: int = 0
+) -> Choice:
+    """`fit`'s family with as many components fitted again to these draws (a mixture's EM
+    started from `fit`), and whichever of the two scores better on the held-out groups.
+
+    For a regeneration chosen from draws that were not the target's (e.g. chains that had not
+    equilibrated), once draws of the target are at hand. The arguments are those of
+    `choose_regeneration`. A fit of no family of `FAMILIES` (e.g. `laplace_fit`), or a rotated
+    product (whose directions would have to be found again), is returned as it is.
+
+    Returns:
+        The better fit (the new one refitted on all the draws it may use) and the two candidates.
+    """
+    family = family_of(fit)
+    if family is None or family == "rotated-product":
+        return Choice(fit, ())
+    split = _split(draws, weights, groups, holdout, max_draws, mixture_draws, seed)
+    x, w, k = split.x, split.w, fit.num_components
+    prepared = _products(x, w, split.test) if family in PRODUCTS else None
+    on = np.flatnonzero(~split.test) if family in PRODUCTS else split.train
+    try:
+        new = _fit(family, x[on], w[on], k, seed, start=fit, binned=None if prepared is None else prepared.train, iterations=SEARCH_ITERATIONS)
+    except (ValueError, np.linalg.LinAlgError):
+        return Choice(fit, ())
+    old_score, new_score = split.score(fit), split.score(new)
+    candidates = (Candidate(fit.family, k, fit.cost, old_score), Candidate(new.family, k, new.cost, new_score))
+    if not new_score > old_score:
+        return Choice(fit, candidates)
+    every = np.arange(x.shape[0]) if family in PRODUCTS else _at_most(np.arange(x.shape[0]), mixture_draws, split.rng)
+    final = _fit(family, x[every], w[every], k, seed, start=new, binned=None if prepared is None else prepared.all)
+    return Choice(final, candidates)
+
+
+class _Split(NamedTuple):
+    """Draws split by group: the finite ones of positive weight (at most `max_draws`), which are
+    held out (`test`), the training draws a mixture is fitted to and the held-out draws it is
+    scored on (at most `mixture_draws` each), and the generator that made the split."""
+
+    x: np.ndarray
+    w: np.ndarray
+    test: np.ndarray
+    train: np.ndarray
+    scored: np.ndarray
+    rng: np.random.Generator
+
+    def score(self, fit: Fit) -> float:
+        """The weighted mean log density of the held-out draws under `fit` (`-inf` where it vanishes)."""
+        logp = fit.log_prob(self.x[self.scored])
+        w = self.w[self.scored]
+        return float(np.sum(w * logp) / np.sum(w)) if np.all(np.isfinite(logp)) else -math.inf
+
+
+def _split(draws, weights, groups, holdout: float, max_draws: int, mixture_draws: int, seed: int) -> _Split:
+    x = np.asarray(draws, np.float64)
+    w = np.asarray(weights, np.float64).reshape(-1)
+    g = np.asarray(groups).reshape(-1)
+    rng = np.random.default_rng(seed)
+    ok = np.isfinite(w) & (w > 0) & np.all(np.isfinite(x), axis=1)
+    x, w, g = x[ok], w[ok], g[ok]
+    if x.shape[0] > max_draws:
+        pick = rng.choice(x.shape[0], max_draws, replace=False)
+        x, w, g = x[pick], w[pick], g[pick]
+    labels = np.unique(g)
+    if labels.size < 4:
+        raise ValueError(f"need draws from at least 4 groups (lanes or chains) to hold some out, got {labels.size}")
+    held = rng.choice(labels, max(1, round(holdout * labels.size)), replace=False)
+    test = np.isin(g, held)
+    train, scored = _at_most(np.flatnonzero(~test), mixture_draws, rng), _at_most(np.flatnonzero(test), mixture_draws, rng)
+    return _Split(x, w, test, train, scored, rng)
+
+
 def _far_behind(family: list[Candidate], candidates: list[Candidate], d: int) -> bool:
     """Whether a family's candidates all trail the best candidate by more than `TAIL_GAIN` nats per coordinate."""
     return bool(family) and max(c.score for c in family) < max(c.score for c in candidates) - TAIL_GAIN * d
@@ -318,6 +372,11 @@ def _base(family: str) -> str:
     """The family whose best size a family's search starts from: the Gaussian family of a
     Student-t one (`"diagonal-t"` -> `"diagonal"`), the product of a rotated product."""
     return "product" if family == "rotated-product" else family.removesuffix("-t")
+
+
+def family_of(fit: Fit, families: Sequence[str] = FAMILIES) -> str | None:
+    """The family (among `families`) whose fits `fit` is one of, or `None` (a fit made elsewhere, e.g. `laplace_fit`)."""
+    return next((f for f in families if _fit_name(f) == fit.family), None)
 
 
 def _fit_name(family: str) -> str:
