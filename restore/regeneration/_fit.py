@@ -34,7 +34,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from scipy.special import gammaln
-from threadpoolctl import threadpool_limits
+from threadpoolctl import ThreadpoolController
 
 from .._linalg import inverse_tril
 from ._diagonal_mixture import DiagonalMixture, check_df
@@ -118,10 +118,17 @@ def single_threaded(fit):
 
     @functools.wraps(fit)
     def wrapped(*args, **kwargs):
-        with threadpool_limits(limits=1, user_api="blas"):
+        with _thread_pools().limit(limits=1, user_api="blas"):
             return fit(*args, **kwargs)
 
     return wrapped
+
+
+@functools.cache
+def _thread_pools() -> ThreadpoolController:
+    """The process's thread pools, found once: looking for them again at every fit scans every
+    loaded library (milliseconds each time in a process that has loaded JAX)."""
+    return ThreadpoolController()
 
 
 def _prepare(x, w) -> tuple[np.ndarray, np.ndarray]:
