@@ -527,6 +527,7 @@ def autosample(
         refit = refit_regeneration(fit, draws, weights, groups, seed=stage + 1).fit
         if refit is not fit:
             fit, u, chosen_from = refit, regeneration_from(refit), _coverage_sample(draws, weights)
+            say(f"autosample: {fit.family} x{fit.num_components} fitted again to stage 1's tours (their effective share {report.effective_tours:.2f})")
     sampler, piloted = sampler_for(u, log_z)
     with advising(AUTOSAMPLE_ADVICE):
         result = sample(
