@@ -287,7 +287,7 @@ def refit_regeneration(
     Returns:
         The better fit (the new one refitted on all the draws it may use) and the two candidates.
     """
-    family = family_of(fit)
+    family = _family_of(fit)
     if family is None or family == "rotated-product":
         return Choice(fit, ())
     split = _split(draws, weights, groups, holdout, max_draws, mixture_draws, seed)
@@ -374,9 +374,9 @@ def _base(family: str) -> str:
     return "product" if family == "rotated-product" else family.removesuffix("-t")
 
 
-def family_of(fit: Fit, families: Sequence[str] = FAMILIES) -> str | None:
-    """The family (among `families`) whose fits `fit` is one of, or `None` (a fit made elsewhere, e.g. `laplace_fit`)."""
-    return next((f for f in families if _fit_name(f) == fit.family), None)
+def _family_of(fit: Fit) -> str | None:
+    """The family of `FAMILIES` whose fits `fit` is one of, or `None` (a fit made elsewhere, e.g. `laplace_fit`)."""
+    return next((f for f in FAMILIES if _fit_name(f) == fit.family), None)
 
 
 def _fit_name(family: str) -> str:

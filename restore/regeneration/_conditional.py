@@ -22,7 +22,6 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.scipy.special import gammaln
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
 from .._validation import as_float_array, check_point, check_shape
@@ -44,6 +43,16 @@ def variance_features(y):
     """`[1, y]` along the last axis (`(..., d + 1)`), NumPy or JAX."""
     xp = jnp if isinstance(y, jax.Array) else np
     return xp.concatenate([xp.ones_like(y[..., :1]), y], axis=-1)
+
+
+def conditional_log_density(z2, v, df: float | None):
+    """The conditionals' log densities at squared standardised residuals `z2` with log variances
+    `v` (Gaussian, or Student-t with `df`), NumPy or JAX: the density's and the fit's one formula."""
+    if df is None:
+        return -0.5 * (z2 + v) - 0.5 * math.log(2 * math.pi)
+    xp = jnp if isinstance(z2, jax.Array) else np
+    const = math.lgamma(0.5 * (df + 1)) - math.lgamma(0.5 * df) - 0.5 * math.log(df * math.pi)
+    return const - 0.5 * v - 0.5 * (df + 1) * xp.log1p(z2 / df)
 
 
 def coefficient_masks(d: int) -> tuple[np.ndarray, np.ndarray]:
@@ -124,13 +133,7 @@ class ConditionalGaussian(AbstractRegeneration):
         y = (x - self.loc) / self.scale
         m, v = self._moments(y)
         z2 = (y - m) ** 2 * jnp.exp(-v)
-        if self.df is None:
-            log_density = -0.5 * (z2 + v) - 0.5 * math.log(2 * math.pi)
-        else:
-            nu = self.df
-            const = gammaln(0.5 * (nu + 1)) - gammaln(0.5 * nu) - 0.5 * math.log(nu * math.pi)
-            log_density = const - 0.5 * v - 0.5 * (nu + 1) * jnp.log1p(z2 / nu)
-        return jnp.sum(log_density) - jnp.sum(jnp.log(self.scale))
+        return jnp.sum(conditional_log_density(z2, v, self.df)) - jnp.sum(jnp.log(self.scale))
 
     def sample(self, key: PRNGKeyArray, shape: tuple[int, ...] = ()) -> Float[Array, "*shape d"]:
         shape = check_shape(shape)

@@ -23,9 +23,15 @@ import math
 import jax.numpy as jnp
 import numpy as np
 
-from ._conditional import LOG_VARIANCE_RANGE, ConditionalGaussian, mean_features, variance_features
+from ._conditional import (
+    LOG_VARIANCE_RANGE,
+    ConditionalGaussian,
+    conditional_log_density,
+    mean_features,
+    variance_features,
+)
 from ._diagonal_mixture import check_df
-from ._fit import Fit, _prepare, _student_const, single_threaded
+from ._fit import Fit, _prepare, single_threaded
 
 #: Alternations of the mean and log-variance steps per coordinate (at most).
 ITERATIONS = 25
@@ -123,14 +129,7 @@ def _fit_coordinate(
         previous = value
     v = np.clip(g @ c, low, high)
     z2 = (target - f @ a) ** 2 * np.exp(-v)
-    return a, c, float(w @ _log_density(z2, v, df))
-
-
-def _log_density(z2: np.ndarray, v: np.ndarray, df: float | None) -> np.ndarray:
-    """The conditional log densities of standardised residuals `z2` (squared) with log variances `v`."""
-    if df is None:
-        return -0.5 * (z2 + v) - 0.5 * math.log(2 * math.pi)
-    return _student_const(df, 1) - 0.5 * v - 0.5 * (df + 1) * np.log1p(z2 / df)
+    return a, c, float(w @ conditional_log_density(z2, v, df))
 
 
 def _solve(lhs: np.ndarray, rhs: np.ndarray) -> np.ndarray:
@@ -155,7 +154,7 @@ def _conditional_fit(loc: np.ndarray, scale: np.ndarray, a: np.ndarray, c: np.nd
         y = (np.asarray(points, np.float64) - loc) / scale
         m = mean_features(y) @ a.T
         v = np.clip(variance_features(y) @ c.T, low, high)
-        return np.sum(_log_density((y - m) ** 2 * np.exp(-v), v, df), axis=1) - np.sum(np.log(scale))
+        return np.sum(conditional_log_density((y - m) ** 2 * np.exp(-v), v, df), axis=1) - np.sum(np.log(scale))
 
     family = "conditional" + ("" if df is None else f" student-t(df={df:g})")
     return Fit(build, log_prob, family, 1, conditional_cost(d), dict(loc=loc, scale=scale, mean=a, log_variance=c))
