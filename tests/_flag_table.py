@@ -1,6 +1,8 @@
 """The reliability flag over a graded family of regenerations and targets: per setting, the share of
 replications flagged, the coverage of the 95% interval among reliable and among flagged replications,
-and the worst |z| of a reliable one. `python -m tests._flag_table` prints the table."""
+the worst |z| of a reliable one, and how much farther off the flagged estimates are than the reliable
+ones (their root-mean-square errors' ratio, per estimate). `python -m tests._flag_table` prints the table
+(in float64, as the tests run it)."""
 
 from __future__ import annotations
 
@@ -19,6 +21,10 @@ from restore.regeneration import Gaussian, StudentT
 
 #: Lanes per replication, replications per setting, steps per run.
 LANES, REPLICATIONS, STEPS = 16, 150, 1000
+#: The two estimates of every replication.
+ESTIMATES = ("P(x > 1)", "log Z")
+#: Below this many estimates on either side, a root-mean-square error is too noisy to compare.
+MIN_SIDE = 10
 Z95 = float(stats.norm.isf(0.025))
 
 
@@ -64,10 +70,13 @@ class Row(NamedTuple):
     reliable_coverage: float
     flagged_coverage: float
     worst_reliable_z: float
+    error_ratio: tuple[float, ...]  # per estimate: RMS error of the flagged / of the reliable (NaN: a side under `MIN_SIDE`)
+    errors: np.ndarray  # `(REPLICATIONS, len(ESTIMATES))`: each estimate minus its truth
+    reliable: np.ndarray  # `(REPLICATIONS, len(ESTIMATES))`: marked reliable
 
 
-def replications(setting: Setting, key) -> tuple[np.ndarray, np.ndarray]:
-    """`(z, reliable)` of P(x > 1) and log Z in every replication (two estimates each)."""
+def replications(setting: Setting, key) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`(z, reliable, error)` of P(x > 1) and log Z in every replication (two estimates each, in that order)."""
     sampler = restore.JumpRestore(logdensity(setting.df), restore.local.RandomWalk(1.0), regeneration(setting), tour_length=3.0)
     sf = float(stats.norm.sf(1.0) if math.isinf(setting.df) else stats.t.sf(1.0, setting.df))
     with warnings.catch_warnings():
@@ -76,22 +85,33 @@ def replications(setting: Setting, key) -> tuple[np.ndarray, np.ndarray]:
             sampler, key, num_lanes=REPLICATIONS * LANES, num_steps=STEPS, save=restore.SaveDraws(0), progress=False,
             observables={"tail": lambda x: (x[0] > 1.0).astype(x.dtype)[None]},
         )  # fmt: skip
-        z, reliable = [], []
+        z, reliable, error = [], [], []
         for r in range(REPLICATIONS):
             lanes = slice(r * LANES, (r + 1) * LANES)
             for est, truth in ((result.estimate("tail", lanes=lanes), sf), (result.normalising_constant(lanes=lanes), 0.0)):
                 z.append(float(np.ravel(est.z_score(truth))[0]))
                 reliable.append(bool(np.all(est.reliable)))
-    return np.array(z), np.array(reliable)
+                error.append(float(np.ravel(est.value)[0]) - truth)
+    return np.array(z), np.array(reliable), np.array(error)
+
+
+def error_ratio(error: np.ndarray, reliable: np.ndarray) -> float:
+    """Root-mean-square error of the flagged estimates over that of the reliable ones (NaN: a side under `MIN_SIDE`)."""
+    if min(np.sum(reliable), np.sum(~reliable)) < MIN_SIDE:
+        return math.nan
+    rms = lambda e: float(np.sqrt(np.mean(e**2)))  # noqa: E731
+    return rms(error[~reliable]) / rms(error[reliable])
 
 
 def row(setting: Setting, key) -> Row:
     """The flag's record in one setting."""
-    z, reliable = replications(setting, key)
+    z, reliable, error = replications(setting, key)
     covered = np.abs(z) < Z95
     mean = lambda a: float(np.mean(a)) if a.size else math.nan  # noqa: E731
     worst = float(np.max(np.abs(z[reliable]))) if reliable.any() else math.nan
-    return Row(setting, z.size, mean(~reliable), mean(covered[reliable]), mean(covered[~reliable]), worst)
+    error, reliable_ = error.reshape(-1, len(ESTIMATES)), reliable.reshape(-1, len(ESTIMATES))
+    ratios = tuple(error_ratio(error[:, i], reliable_[:, i]) for i in range(len(ESTIMATES)))
+    return Row(setting, z.size, mean(~reliable), mean(covered[reliable]), mean(covered[~reliable]), worst, ratios, error, reliable_)
 
 
 def table(seed: int = 0) -> list[Row]:
@@ -103,16 +123,18 @@ def markdown(rows: list[Row]) -> str:
     """The table as Markdown."""
     show = lambda v, f: "-" if math.isnan(v) else format(v, f)  # noqa: E731
     lines = [
-        "| target, regeneration | flagged | coverage, reliable | coverage, flagged | worst reliable \\|z\\| |",
-        "|---|---|---|---|---|",
+        "| target, regeneration | flagged | coverage, reliable | coverage, flagged | worst reliable \\|z\\| "
+        f"| RMS error, flagged / reliable ({', '.join(ESTIMATES)}) |",
+        "|---|---|---|---|---|---|",
     ]
     for r in rows:
         lines.append(
             f"| {r.setting.label()} | {round(r.flagged * r.estimates)} of {r.estimates} | {show(r.reliable_coverage, '.3f')} "
-            f"| {show(r.flagged_coverage, '.3f')} | {show(r.worst_reliable_z, '.2f')} |"
+            f"| {show(r.flagged_coverage, '.3f')} | {show(r.worst_reliable_z, '.2f')} | {', '.join(show(v, '.2f') for v in r.error_ratio)} |"
         )
     return "\n".join(lines)
 
 
 if __name__ == "__main__":
+    jax.config.update("jax_enable_x64", True)  # as the test suite runs it (`tests/conftest.py`)
     print(markdown(table()))
