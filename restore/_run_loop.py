@@ -344,9 +344,10 @@ def advance(chunk: Chunk, carry: RunCarry) -> tuple[RunCarry, ChunkReport]:
 
 #: Runs of at least this many lanes (per device) finish their open tours `NARROW_FACTOR` times
 #: narrower (`finish`); smaller runs finish them at full width (`advance`), which costs no
-#: second compilation of the step.
+#: second compilation of the step. Narrower batches finish sooner down to about 1/32 of the
+#: lanes (`docs/benchmarks.md`).
 NARROW_FINISH_LANES = 4096
-NARROW_FACTOR = 8
+NARROW_FACTOR = 32
 
 
 def finishing_width(num_lanes: int) -> int | None:

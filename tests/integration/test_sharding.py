@@ -79,11 +79,12 @@ for name, (sampler, devices) in runs.items():
     report[f"{name}/finishing_steps"] = result.finishing_steps
 # The open tours finished in a batch narrower than the lanes (each device its own), as large runs do.
 import restore._run_loop as run_loop
+narrow_defaults = run_loop.NARROW_FINISH_LANES, run_loop.NARROW_FACTOR
 run_loop.NARROW_FINISH_LANES, run_loop.NARROW_FACTOR = 1, 2
 with warnings.catch_warnings():
     warnings.simplefilter("ignore")
     result = restore.sample(jump, jax.random.key(7), num_lanes=8, num_steps=200, progress=False, devices=runs["jump"][1])
-run_loop.NARROW_FINISH_LANES, run_loop.NARROW_FACTOR = 4096, 8
+run_loop.NARROW_FINISH_LANES, run_loop.NARROW_FACTOR = narrow_defaults
 record(arrays, "narrow", result)
 report["narrow/finishing_steps"] = result.finishing_steps
 if mode == "sharded":  # interrupted after two chunks, then resumed from the checkpoint onto the devices
