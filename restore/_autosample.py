@@ -10,7 +10,8 @@ target. `autosample` builds `u` in stages, population-Monte-Carlo style:
    held-out likelihood, `restore.regeneration.choose_regeneration`), mix in a broad
    defensive component built from the user's knowledge (so `u` covers the target), and
    run jump Restore with that `u` frozen. Each stage is an exact Restore run; its
-   tour-weighted draws are draws of the target, and the next stage is fitted to them.
+   tour-weighted draws are draws of the target, and the next stage is fitted to them
+   (from the families that came close to the best in this choice: `close_families`).
 3. **Stop** when a stage's tours are healthy: the Pareto shape `k_hat` of the tour
    durations and of the importance weights is small, no tour outlasted the stage and no
    handful of tours holds most of the time (`TourStatistics.heavy_tailed`), so the tours
@@ -84,7 +85,7 @@ from .regeneration import (
     UniformBox,
     choose_regeneration,
 )
-from .regeneration._choose import FAMILIES, padded_size, refit_regeneration
+from .regeneration._choose import FAMILIES, close_families, padded_size, refit_regeneration
 
 #: A stage is healthy when the tail shape of its tour durations is below this...
 HEALTHY_DURATION_K = 0.3
@@ -490,6 +491,8 @@ def autosample(
         stage += 1
         clock = time.perf_counter()
         choice = choose_regeneration(draws, weights, groups, families=families, seed=stage, sizes=sizes, extra=extra)
+        # the next stage fits again only the families that came close to the best
+        families = close_families(families, choice.candidates, d)
         u = regeneration_from(choice.fit)
         sampler, piloted = sampler_for(u, log_z)
         stage_key = stage_keys[stage - 1] if stage <= len(stage_keys) else jax.random.fold_in(stage_keys[-1], stage)

@@ -9,6 +9,7 @@ import pytest
 from scipy import stats
 
 from restore.regeneration import (
+    Candidate,
     DiagonalMixture,
     Gaussian,
     Mixture,
@@ -21,7 +22,7 @@ from restore.regeneration import (
     fit_rotated_product,
     independent_axes,
 )
-from restore.regeneration._choose import AXES_GAIN
+from restore.regeneration._choose import AXES_GAIN, FAMILIES, FAMILY_GAIN, close_families
 
 KEY = jax.random.key(3)
 
@@ -311,3 +312,18 @@ def test_a_fit_to_draws_that_are_not_the_targets_is_refitted_to_the_targets(fami
     assert again.fit is choice.fit or again.candidates[1].score > again.candidates[0].score
     made_elsewhere = first._replace(family="laplace")
     assert refit_regeneration(made_elsewhere, target, np.ones(n), groups).fit is made_elsewhere
+
+
+def test_a_later_choice_fits_again_only_the_families_that_came_close():
+    """`close_families` drops a family that trailed by more than `FAMILY_GAIN` nats per coordinate, with the
+    Student-t family searched from it, and keeps the rest (the scores are Many-Well-32's first choice)."""
+    d = 32
+    scored = [("product", -34.16), ("diagonal", -55.95), ("diagonal student-t(df=5)", -54.43), ("full", -56.26),
+              ("conditional", -55.96), ("rotated product", -34.20)]  # fmt: skip
+    candidates = [Candidate(family, 1, 1, score) for family, score in scored]
+    kept = close_families(FAMILIES, candidates, d)
+    assert kept == ("product", "rotated-product"), kept  # conditional-t and full-t had no candidate: they follow their base
+    assert FAMILY_GAIN * d < 54.43 - 34.16
+    close = [c._replace(score=-34.16 - 0.9 * FAMILY_GAIN * d) if c.family == "full" else c for c in candidates]
+    assert close_families(FAMILIES, close, d) == ("product", "rotated-product", "full", "full-t")
+    assert close_families(FAMILIES, [], d) == FAMILIES
