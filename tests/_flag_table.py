@@ -70,9 +70,13 @@ class Row(NamedTuple):
     reliable_coverage: float
     flagged_coverage: float
     worst_reliable_z: float
-    error_ratio: tuple[float, ...]  # per estimate: RMS error of the flagged / of the reliable (NaN: a side under `MIN_SIDE`)
     errors: np.ndarray  # `(REPLICATIONS, len(ESTIMATES))`: each estimate minus its truth
     reliable: np.ndarray  # `(REPLICATIONS, len(ESTIMATES))`: marked reliable
+
+    @property
+    def error_ratio(self) -> tuple[float, ...]:
+        """Per estimate: the RMS error of the flagged over that of the reliable (NaN: a side under `MIN_SIDE`)."""
+        return tuple(error_ratio(self.errors[:, i], self.reliable[:, i]) for i in range(len(ESTIMATES)))
 
 
 def replications(setting: Setting, key) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -109,9 +113,10 @@ def row(setting: Setting, key) -> Row:
     covered = np.abs(z) < Z95
     mean = lambda a: float(np.mean(a)) if a.size else math.nan  # noqa: E731
     worst = float(np.max(np.abs(z[reliable]))) if reliable.any() else math.nan
-    error, reliable_ = error.reshape(-1, len(ESTIMATES)), reliable.reshape(-1, len(ESTIMATES))
-    ratios = tuple(error_ratio(error[:, i], reliable_[:, i]) for i in range(len(ESTIMATES)))
-    return Row(setting, z.size, mean(~reliable), mean(covered[reliable]), mean(covered[~reliable]), worst, ratios, error, reliable_)
+    per_estimate = lambda a: a.reshape(-1, len(ESTIMATES))  # noqa: E731
+    return Row(
+        setting, z.size, mean(~reliable), mean(covered[reliable]), mean(covered[~reliable]), worst, per_estimate(error), per_estimate(reliable)
+    )
 
 
 def table(seed: int = 0) -> list[Row]:
