@@ -1,5 +1,7 @@
 """Renders that are interrupted and resumed from a checkpoint (on `AnalyticImage`, no Mitsuba)."""
 
+import time
+
 import jax
 import numpy as np
 import pytest
@@ -43,12 +45,24 @@ def test_interrupted_and_resumed_render_is_bit_identical(renderer, tmp_path):
 
 def test_time_budget_counts_the_time_spent_before_the_interruption(tmp_path):
     checkpoint = tmp_path / "render.ckpt"
-    budget = dict(key=jax.random.key(0), seconds=1.5, num_lanes=128, progress=False, checkpoint=checkpoint)
-    partial = render(TARGET, MetropolisRestore(), on_update=_interrupt_after(3), **budget)
-    assert partial.interrupted
+    budget = dict(key=jax.random.key(0), seconds=1.5, num_lanes=128, chunk=50, progress=False, checkpoint=checkpoint)
+    first_update: list[float] = []
+
+    def interrupt_after_a_second(image, statistics):  # of the run's own time (compilation is not counted)
+        first_update.append(time.perf_counter())
+        if first_update[-1] - first_update[0] > 1.0:
+            raise KeyboardInterrupt
+
+    partial = render(TARGET, MetropolisRestore(), on_update=interrupt_after_a_second, **budget)
+    assert partial.interrupted and partial.seconds > 0.8
+    start = time.perf_counter()
     resumed = render(TARGET, MetropolisRestore(), **budget)
+    session = time.perf_counter() - start - resumed.compile_seconds - resumed.finishing_seconds
     assert resumed.steps > partial.steps
-    assert resumed.seconds == pytest.approx(1.5, abs=0.5)  # the whole run's time, both sessions
+    # the budget's time over both sessions (the finishing of the open tours comes on top of it);
+    # the second session spends what the first left, where one that forgot it would spend 1.5 s
+    assert resumed.seconds - resumed.finishing_seconds == pytest.approx(1.5, abs=0.5)
+    assert session < 1.5 - partial.seconds + 0.4
     assert read_header(checkpoint)["seconds_spent"] == pytest.approx(resumed.seconds, abs=0.1)
 
 
