@@ -10,10 +10,12 @@ import math
 import warnings
 from typing import NamedTuple
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.scipy.special import gammaln
+from jaxtyping import Array
 from scipy import stats
 
 import restore
@@ -42,12 +44,34 @@ class Setting(NamedTuple):
         return f"{'normal' if math.isinf(self.df) else f't, df {self.df:g}'}, {self.regeneration}"
 
 
-def logdensity(df: float):
-    """The standard normal or Student-t log density (normalised, so log Z = 0)."""
-    if math.isinf(df):
-        return lambda x: -0.5 * x[0] ** 2 - 0.5 * math.log(2 * math.pi)
-    const = float(gammaln((df + 1) / 2) - gammaln(df / 2) - 0.5 * math.log(df * math.pi))
-    return lambda x: const - (df + 1) / 2 * jnp.log1p(x[0] ** 2 / df)
+class LogDensity(eqx.Module):
+    """The standard normal or Student-t log density (normalised, so log Z = 0).
+
+    The degrees of freedom are an array, not a constant of a closure: the settings then share
+    three compiled programs (normal or Student-t target, Gaussian or Student-t regeneration)
+    instead of compiling one each.
+    """
+
+    df: Array
+    inverse_df: Array  # `x**2 * (1 / df)`, as XLA computes `x**2 / df` for a constant `df`: the same bits
+    const: Array
+    normal: bool = eqx.field(static=True)
+
+    def __init__(self, df: float):
+        self.normal = math.isinf(df)
+        const = -0.5 * math.log(2 * math.pi) if self.normal else gammaln((df + 1) / 2) - gammaln(df / 2) - 0.5 * math.log(df * math.pi)
+        self.df = jnp.asarray(1.0 if self.normal else df)
+        self.inverse_df, self.const = 1.0 / self.df, jnp.asarray(float(const))
+
+    def __call__(self, x: Array) -> Array:
+        if self.normal:
+            return -0.5 * x[0] ** 2 + self.const
+        return self.const - (self.df + 1) / 2 * jnp.log1p(x[0] ** 2 * self.inverse_df)
+
+
+def tail_indicator(x: Array) -> Array:
+    """The observable `1{x > 1}` (one function for every setting: one compiled program)."""
+    return (x[0] > 1.0).astype(x.dtype)[None]
 
 
 def regeneration(setting: Setting):
@@ -81,13 +105,13 @@ class Row(NamedTuple):
 
 def replications(setting: Setting, key) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """`(z, reliable, error)` of P(x > 1) and log Z in every replication (two estimates each, in that order)."""
-    sampler = restore.JumpRestore(logdensity(setting.df), restore.local.RandomWalk(1.0), regeneration(setting), tour_length=3.0)
+    sampler = restore.JumpRestore(LogDensity(setting.df), restore.local.RandomWalk(1.0), regeneration(setting), tour_length=3.0)
     sf = float(stats.norm.sf(1.0) if math.isinf(setting.df) else stats.t.sf(1.0, setting.df))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         result = restore.sample(
             sampler, key, num_lanes=REPLICATIONS * LANES, num_steps=STEPS, save=restore.SaveDraws(0), progress=False,
-            observables={"tail": lambda x: (x[0] > 1.0).astype(x.dtype)[None]},
+            observables={"tail": tail_indicator},
         )  # fmt: skip
         z, reliable, error = [], [], []
         for r in range(REPLICATIONS):
