@@ -75,7 +75,8 @@ def _free_port() -> int:
 def _launch(mode: str, out, process_id=None, port=None) -> subprocess.Popen:
     env = {
         **os.environ,
-        "XLA_FLAGS": "--xla_force_host_platform_device_count=2 --xla_backend_optimization_level=1",
+        # the suite's compiler flags (tests/conftest.py), with the forced devices
+        "XLA_FLAGS": f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count=2".strip(),
         "JAX_PLATFORMS": "cpu",
         "PYTHONPATH": os.pathsep.join(p for p in (ROOT, os.environ.get("PYTHONPATH")) if p),
     }
