@@ -1,8 +1,14 @@
 """Helpers for the subprocess scripts of the tests that run one sampler in several layouts."""
 
 import contextlib
+import os
 
 import numpy as np
+
+
+def forced_devices_flags(devices: int) -> str:
+    """`XLA_FLAGS` for a subprocess on `devices` forced CPU devices, with the suite's compiler flags (`tests/conftest.py`)."""
+    return f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count={devices}".strip()
 
 
 def record(arrays: dict, name: str, result) -> None:

@@ -16,6 +16,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests._runs import forced_devices_flags
+
 ROOT = str(Path(__file__).resolve().parents[2])  # the scripts import tests._runs
 
 SCRIPT = r"""
@@ -75,8 +77,7 @@ def _free_port() -> int:
 def _launch(mode: str, out, process_id=None, port=None) -> subprocess.Popen:
     env = {
         **os.environ,
-        # the suite's compiler flags (tests/conftest.py), with the forced devices
-        "XLA_FLAGS": f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count=2".strip(),
+        "XLA_FLAGS": forced_devices_flags(2),
         "JAX_PLATFORMS": "cpu",
         "PYTHONPATH": os.pathsep.join(p for p in (ROOT, os.environ.get("PYTHONPATH")) if p),
     }

@@ -20,6 +20,7 @@ import pytest
 import restore
 from restore.local import RandomWalk
 from restore.regeneration import Gaussian
+from tests._runs import forced_devices_flags
 
 NUM_DEVICES = 4
 ROOT = str(Path(__file__).resolve().parents[2])  # the script imports tests._runs
@@ -110,8 +111,7 @@ def runs(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("sharding")
     env = {
         **os.environ,
-        # the suite's compiler flags (tests/conftest.py), with the forced devices
-        "XLA_FLAGS": f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count={NUM_DEVICES}".strip(),
+        "XLA_FLAGS": forced_devices_flags(NUM_DEVICES),
         "JAX_PLATFORMS": "cpu",
         "JAX_ENABLE_X64": "1",
         "PYTHONPATH": os.pathsep.join(p for p in (ROOT, os.environ.get("PYTHONPATH")) if p),
