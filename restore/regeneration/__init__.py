@@ -13,7 +13,8 @@ regeneration distribution with density `u`. Every distribution here is an
 Available: `Gaussian`, `StudentT`, `UniformBox`, `UniformTorus`, `Mixture`,
 `DiagonalMixture` (axis-aligned components, `O(K d)` per evaluation),
 `ConditionalGaussian` (each coordinate Gaussian given the earlier ones: curved targets),
-`ProductMixture` (a product of one-dimensional mixtures), `RotatedProductMixture`
+`ProductMixture` (a product of one-dimensional mixtures), `TorusKernelMixture`
+(uniform on the torus mixed with kernels around learned centres: light transport), `RotatedProductMixture`
 (the same along other directions, found by `independent_axes`), and `laplace_mixture`
 (with `find_modes` / `LaplaceModes` / `mixture_from_modes`) which builds a
 mixture of Laplace approximations at the modes of a target found by multi-start
@@ -52,6 +53,7 @@ from ._mixture import Mixture as Mixture
 from ._product_mixture import ProductMixture as ProductMixture
 from ._rotated_product import RotatedProductMixture as RotatedProductMixture
 from ._student_t import StudentT as StudentT
+from ._torus_kernels import TorusKernelMixture as TorusKernelMixture
 from ._uniform import UniformBox as UniformBox
 from ._uniform import UniformTorus as UniformTorus
 
@@ -69,6 +71,7 @@ __all__ = [
     "ProductMixture",
     "RotatedProductMixture",
     "StudentT",
+    "TorusKernelMixture",
     "UniformBox",
     "UniformTorus",
     "choose_regeneration",

@@ -8,7 +8,9 @@ and the same large step (a uniform draw), and run on the core: `pss_logdensity(t
 is the target as a log density of one point (with the contribution `rgb / lum` as aux),
 and the local kernels are `restore.local`'s `TorusMetropolis`, `TorusMALA` and `TorusH2MC`:
 - `MetropolisRestore`, `MALARestore` and `H2MCRestore`: the core's `JumpRestore` with a
-  uniform regeneration (`UniformTorus`), killed at `c / lum`, splatting onto a film.
+  uniform regeneration (`UniformTorus`), killed at `c / lum`, splatting onto a film; or
+  with a regeneration density `q` learned from the bootstrap paths (`LearnedRegeneration`),
+  killed at `c q / lum`.
 - `PSSMLT`: Kelemen et al.'s Metropolis light transport with expected-value splatting;
   with `TorusMALA` or `TorusH2MC` as its small step, MALA (Luan et al.) and H2MC (Li et al.).
 - `ERPT`: energy redistribution path tracing, in rounds of equal-deposition chains.
@@ -29,6 +31,7 @@ from ._erpt import ERPTStatistics as ERPTStatistics
 from ._film import empty_film as empty_film
 from ._film import splat as splat
 from ._h2mc_restore import H2MCRestore as H2MCRestore
+from ._learned_regeneration import LearnedRegeneration as LearnedRegeneration
 from ._mala_restore import MALARestore as MALARestore
 from ._metrics import l1 as l1
 from ._metrics import mape as mape

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 from ..local import TorusH2MC
+from ._learned_regeneration import LearnedRegeneration
 from ._restore_renderer import AbstractPSSRestore
 
 
@@ -28,6 +29,8 @@ class H2MCRestore(AbstractPSSRestore):
             spent, every open tour runs to its end (as in `MetropolisRestore`).
         start: only with `finish_tours=False`: `"stationary"` (default) or `"uniform"`
             (as in `MetropolisRestore`).
+        learned: regenerate from a density learned from the bootstrap paths
+            (`LearnedRegeneration`) instead of uniformly (`docs/rendering.md` measures both).
     """
 
     def __init__(
@@ -40,5 +43,6 @@ class H2MCRestore(AbstractPSSRestore):
         n_bootstrap: int = 65536,
         start: str | None = None,
         finish_tours: bool = True,
+        learned: LearnedRegeneration | None = None,
     ):
-        self._setup(TorusH2MC(sigma, angle), tour_length, rate, n_bootstrap, start, finish_tours)
+        self._setup(TorusH2MC(sigma, angle), tour_length, rate, n_bootstrap, start, finish_tours, learned)

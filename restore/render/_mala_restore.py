@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from ..local import TorusMALA
+from ._learned_regeneration import LearnedRegeneration
 from ._restore_renderer import AbstractPSSRestore
 
 
@@ -30,6 +31,8 @@ class MALARestore(AbstractPSSRestore):
             in the jump chain's stationary law `lum + c`, resampled from the bootstrap;
             `"uniform"` at tour starts (darker in short runs: tours in bright regions are
             still open at the end).
+        learned: regenerate from a density learned from the bootstrap paths
+            (`LearnedRegeneration`) instead of uniformly (`docs/rendering.md` measures both).
     """
 
     def __init__(
@@ -41,5 +44,6 @@ class MALARestore(AbstractPSSRestore):
         n_bootstrap: int = 65536,
         start: str | None = None,
         finish_tours: bool = True,
+        learned: LearnedRegeneration | None = None,
     ):
-        self._setup(TorusMALA(step_size), tour_length, rate, n_bootstrap, start, finish_tours)
+        self._setup(TorusMALA(step_size), tour_length, rate, n_bootstrap, start, finish_tours, learned)

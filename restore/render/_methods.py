@@ -5,6 +5,7 @@ from __future__ import annotations
 from ..local import AbstractTorusMutation, KelemenMutation, TorusH2MC, TorusMALA
 from ._erpt import ERPT
 from ._h2mc_restore import H2MCRestore
+from ._learned_regeneration import LearnedRegeneration
 from ._mala_restore import MALARestore
 from ._metropolis_restore import MetropolisRestore
 from ._pssmlt import PSSMLT
@@ -12,7 +13,7 @@ from ._renderer import AbstractRenderer
 from ._uniform import UniformSampler
 
 #: `path` is Mitsuba's own integrator; the others run on the primary-sample-space target.
-METHODS = ("path", "uniform", "pssmlt", "restore", "mala", "mala-restore", "h2mc", "h2mc-restore", "erpt")
+METHODS = ("path", "uniform", "pssmlt", "restore", "restore-learned", "mala", "mala-restore", "h2mc", "h2mc-restore", "erpt")
 GRADIENT_METHODS = ("mala", "mala-restore", "h2mc", "h2mc-restore")
 
 
@@ -26,7 +27,7 @@ LANES = 2048
 #: Methods whose own default differs: Restore's tours are independent, so it gains from the
 #: throughput of more lanes, up to where finishing the longest open tours after the budget
 #: costs more than it gains (16384 lanes on the pool, `docs/rendering.md`).
-METHOD_LANES = {"restore": 8192}
+METHOD_LANES = {"restore": 8192, "restore-learned": 8192}
 
 
 def default_lanes(method: str) -> int:
@@ -49,7 +50,8 @@ def make_renderer(
     and a uniform draw as large step; `mala` and `mala-restore` move by `TorusMALA(step_size)`,
     `h2mc` and `h2mc-restore` by `TorusH2MC()` (its authors' settings), and `mala` and
     `h2mc` are PSSMLT with that small step (its large steps and `p_large`, as their authors
-    run them). Each method keeps its own exploration setting: a Restore tour makes
+    run them). `restore-learned` is Metropolis Restore regenerating from a density learned
+    from its bootstrap paths (`LearnedRegeneration()`). Each method keeps its own exploration setting: a Restore tour makes
     `tour_length` local moves on average (complete tours), PSSMLT takes a large step with
     probability `p_large`, ERPT chains are `chain_length` mutations long.
 
@@ -63,6 +65,8 @@ def make_renderer(
         return PSSMLT(mutation, p_large=p_large)
     if method == "restore":
         return MetropolisRestore(mutation, tour_length=tour_length)
+    if method == "restore-learned":
+        return MetropolisRestore(mutation, tour_length=tour_length, learned=LearnedRegeneration())
     if method == "mala":
         return PSSMLT(TorusMALA(step_size), p_large=p_large)
     if method == "mala-restore":

@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import cast
 
 from ..local import AbstractTorusMutation, TorusMetropolis
+from ._learned_regeneration import LearnedRegeneration
 from ._pss import small_step
 from ._restore_renderer import AbstractPSSRestore
 
@@ -40,6 +41,8 @@ class MetropolisRestore(AbstractPSSRestore):
             in the jump chain's stationary law `lum + c`, resampled from the bootstrap;
             `"uniform"` at tour starts (darker in short runs: tours in bright regions are
             still open at the end).
+        learned: regenerate from a density learned from the bootstrap paths
+            (`LearnedRegeneration`) instead of uniformly (`docs/rendering.md` measures both).
     """
 
     def __init__(
@@ -51,8 +54,9 @@ class MetropolisRestore(AbstractPSSRestore):
         n_bootstrap: int = 65536,
         start: str | None = None,
         finish_tours: bool = True,
+        learned: LearnedRegeneration | None = None,
     ):
-        self._setup(TorusMetropolis(mutation), tour_length, rate, n_bootstrap, start, finish_tours)
+        self._setup(TorusMetropolis(mutation), tour_length, rate, n_bootstrap, start, finish_tours, learned)
 
     def local_kernel(self, target) -> TorusMetropolis:
         """The small step, keeping the target's `frozen_coordinates` (on `MultiplexedBDPT`:

@@ -91,6 +91,7 @@ from .._speculation import speculative_steps
 from ..local import AbstractLocalKernel
 from ..regeneration import AbstractRegeneration, UniformTorus
 from ._film import empty_film, splat
+from ._learned_regeneration import LearnedRegeneration
 from ._pss import check_target, contributions, frozen_coordinates, luminance, pixels, pss_logdensity
 from ._renderer import (
     TAIL_WARNING,
@@ -124,6 +125,7 @@ class RestoreParams(NamedTuple):
         z_bootstrap: the bootstrap mean luminance `Z_hat` that set `c` (NaN if `c` was given).
         z_bootstrap_error: relative standard error of `Z_hat`.
         lanes: number of lanes.
+        centres: `(K, D)` centres of the learned regeneration's kernels (`K = 0`: uniform regeneration).
     """
 
     rate: Float[Array, ""]
@@ -131,6 +133,7 @@ class RestoreParams(NamedTuple):
     z_bootstrap: Float[Array, ""]
     z_bootstrap_error: Float[Array, ""]
     lanes: Float[Array, ""]
+    centres: Float[Array, "K D"]
 
 
 class RestoreTally(NamedTuple):
@@ -296,6 +299,8 @@ class AbstractPSSRestore(AbstractRenderer):
         start: `"uniform"` (tour starts) or `"stationary"`, see the module docstring.
         finish_tours: finish every tour started before the budget ends and divide by
             the number of tours (default); else stop at the budget and divide by `K`.
+        learned: regenerate from a density learned from the bootstrap paths
+            (`LearnedRegeneration`), or uniformly (`None`, as the paper's authors do).
     """
 
     tail_statistic: ClassVar[str | None] = "tour_k_hat"
@@ -306,8 +311,9 @@ class AbstractPSSRestore(AbstractRenderer):
     n_bootstrap: int
     start: str
     finish_tours: bool
+    learned: LearnedRegeneration | None
 
-    def _setup(self, kernel, tour_length, rate, n_bootstrap, start, finish_tours):
+    def _setup(self, kernel, tour_length, rate, n_bootstrap, start, finish_tours, learned=None):
         tour_length = float(tour_length)
         if not (math.isfinite(tour_length) and tour_length > 0):
             raise ValueError(f"tour_length must be positive and finite, got {tour_length!r}")
@@ -329,10 +335,13 @@ class AbstractPSSRestore(AbstractRenderer):
             raise ValueError("complete tours begin at regeneration draws: use start='uniform' (or finish_tours=False)")
         self.start = start
         self.finish_tours = finish_tours
+        if learned is not None and not isinstance(learned, LearnedRegeneration):
+            raise TypeError(f"learned must be a restore.render.LearnedRegeneration or None, got {learned!r}")
+        self.learned = learned
 
     @property
     def _bootstraps(self) -> bool:
-        return self.rate is None or self.start == "stationary"
+        return self.rate is None or self.start == "stationary" or self.learned is not None
 
     @property
     def finishes(self) -> bool:  # type: ignore[override]  # the ClassVar is never set, so a property may replace it
@@ -349,9 +358,12 @@ class AbstractPSSRestore(AbstractRenderer):
     def step_cost(self, lanes: int) -> int:
         return lanes
 
-    def regeneration(self, target) -> AbstractRegeneration:
-        """The regeneration distribution: uniform on the torus, in float32."""
-        return UniformTorus(target.dim, jnp.float32)
+    def regeneration(self, target, params: RestoreParams) -> AbstractRegeneration:
+        """The regeneration distribution: uniform on the torus, in float32, or the one
+        `learned` from the bootstrap (its kernels' centres are `params.centres`)."""
+        if self.learned is None:
+            return UniformTorus(target.dim, jnp.float32)
+        return self.learned.distribution(params.centres)
 
     def local_kernel(self, target) -> AbstractLocalKernel:
         """The local kernel on `target`: `kernel`, which must keep the target's frozen
@@ -371,7 +383,7 @@ class AbstractPSSRestore(AbstractRenderer):
         events are kills: at `L = 1` it draws the next tours' starts for all lanes at once,
         which costs less than gathering the killed lanes (`JumpRestore.step_lanes`).
         """
-        logdensity, kernel, regeneration = pss_logdensity(target), self.local_kernel(target), self.regeneration(target)
+        logdensity, kernel, regeneration = pss_logdensity(target), self.local_kernel(target), self.regeneration(target, params)
         if self.rate is None:
             sampler = JumpRestore(logdensity, kernel, regeneration, tour_length=self.tour_length, has_aux=True)
             return sampler.calibrated_to(jnp.log(params.z_bootstrap))
@@ -392,13 +404,17 @@ class AbstractPSSRestore(AbstractRenderer):
             log_rate = jnp.log(z) - math.log(self.tour_length)
         else:
             log_rate = jnp.asarray(math.log(self.rate), jnp.float32)
-        params = RestoreParams(jnp.exp(log_rate), log_rate, z, z_err, jnp.asarray(lanes, jnp.float32))
+        centres = jnp.zeros((0, target.dim), jnp.float32)
+        if self.learned is not None:  # its own key: the other draws stay those of a uniform regeneration
+            centres = self.learned.fit(jax.random.fold_in(k_boot, 1), boot.position, lum)
+        params = RestoreParams(jnp.exp(log_rate), log_rate, z, z_err, jnp.asarray(lanes, jnp.float32), centres)
         sampler = self.sampler(target, params)
         keys = jax.random.split(k_start, lanes)
         if self.start == "uniform":  # tour starts, drawn by the sampler
             states = jax.vmap(sampler.init)(keys)
-        else:  # resample the bootstrap with weights lum + c: the jump chain's stationary law
-            index = resample(k_pick, lum + params.rate, lanes)
+        else:  # resample the bootstrap with weights lum + c q: the jump chain's stationary law
+            regenerations = params.rate if self.learned is None else params.rate * jnp.exp(self.learned.log_density(centres, boot.position))
+            index = resample(k_pick, lum + regenerations, lanes)
             states = jax.vmap(sampler.init)(keys, boot.position[index])
         zeros, ones = jnp.zeros(lanes, jnp.int32), jnp.ones(lanes, bool)
         return RestoreRenderState(

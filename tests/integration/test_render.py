@@ -2,8 +2,8 @@
 
 Convergence checks: `R` independent realisations (fixed keys) of each renderer; per
 2x2-pixel block and channel, a t-test of the mean of the realisations against the exact
-block mean, Bonferroni-corrected over the blocks. A negative control (Restore with a
-constant kill rate) must fail the same check.
+block mean, Bonferroni-corrected over the blocks. Negative controls (Restore with a
+constant kill rate; a learned regeneration left out of the kill rate) must fail the same check.
 """
 
 import math
@@ -65,8 +65,13 @@ def relative_error(images, exact=EXACT):
     return float(np.mean(np.sqrt(np.sum((images - exact) ** 2, axis=(1, 2, 3)) / np.sum(exact**2))))
 
 
+LEARNED = rr.LearnedRegeneration(components=64, bandwidth=0.05)  # kernels about as wide as the bumps
 RENDERERS = {  # (renderer, lanes, steps): a few million evaluations over the R realisations
     "metropolis_restore": (lambda: rr.MetropolisRestore(n_bootstrap=16384), 128, 640),  # complete tours, L = 1
+    "metropolis_restore_learned": (lambda: rr.MetropolisRestore(n_bootstrap=16384, learned=LEARNED), 128, 640),
+    "metropolis_restore_learned_open": (  # a stationary start, from the bootstrap weighted by lum + c q
+        lambda: rr.MetropolisRestore(n_bootstrap=16384, learned=LEARNED, finish_tours=False), 128, 640,
+    ),
     "mala_restore": (lambda: rr.MALARestore(2e-4, n_bootstrap=16384), 128, 320),
     "h2mc_restore": (lambda: rr.H2MCRestore(n_bootstrap=16384), 128, 320),
     "pssmlt": (lambda: rr.PSSMLT(n_bootstrap=16384), 128, 640),
@@ -181,14 +186,42 @@ class ConstantRateRestore(rr.MetropolisRestore):
     """Negative control: a regeneration density that does not match its draws turns the kill
     rate `c q / p = c / lum` into the constant `c / Z`."""
 
-    def regeneration(self, target):
+    def regeneration(self, target, params):
         return MislabelledTorus(target.dim)
+
+
+class KernelDrawsUniformDensity(AbstractRegeneration):
+    """Draws of a learned regeneration whose claimed density is the uniform's: the kill rate
+    leaves `q` out."""
+
+    drawn: AbstractRegeneration
+    dim: int
+
+    def sample(self, key, shape=()):
+        return self.drawn.sample(key, shape)
+
+    def log_prob(self, x):
+        return jnp.zeros((), x.dtype)
+
+
+class LearnedDrawsUniformKill(rr.MetropolisRestore):
+    """Negative control: tours start at the learned regeneration's draws but are killed at the
+    uniform's rate `c / lum`."""
+
+    def regeneration(self, target, params):
+        return KernelDrawsUniformDensity(drawn=super().regeneration(target, params), dim=target.dim)
 
 
 def test_negative_control_constant_kill_rate_is_rejected():
     _, late, _ = realisations(ConstantRateRestore(tour_length=16, n_bootstrap=16384), 128, 320, r=12)
     p_value, t_max = block_test(late)
     assert p_value < 1e-6, f"the wrong kill rate passed: p = {p_value:.2g}, max |t| = {t_max:.1f}"
+
+
+def test_negative_control_learned_regeneration_left_out_of_the_kill_rate_is_rejected():
+    _, late, _ = realisations(LearnedDrawsUniformKill(n_bootstrap=16384, learned=LEARNED), 128, 640)
+    p_value, t_max = block_test(late)
+    assert p_value < 1e-6, f"a kill rate without q passed: p = {p_value:.2g}, max |t| = {t_max:.1f}"
 
 
 def test_restore_renders_run_a_sampler_that_knows_its_tour_length():

@@ -88,7 +88,7 @@ def _summary(z):
     }
 
 
-@pytest.mark.parametrize("method", ["restore", "pssmlt"])
+@pytest.mark.parametrize("method", ["restore", "restore-learned", "pssmlt"])
 def test_mcmc_renders_of_multiplexed_bdpt_match_the_native_image(target, native, method):
     z = agreement_z(_bins(_realisations(_renderer(method), target)), _bins(native))
     assert failures(z) == [], (method, _summary(z))
@@ -98,6 +98,8 @@ def _renderer(method):
     """The method's renderer with the defaults of `make_renderer` and a smaller bootstrap."""
     if method == "restore":
         return rr.MetropolisRestore(n_bootstrap=16384)
+    if method == "restore-learned":  # regenerating from kernels around bright bootstrap paths (the depth coordinate included)
+        return rr.MetropolisRestore(n_bootstrap=16384, learned=rr.LearnedRegeneration())
     return rr.PSSMLT(n_bootstrap=16384)
 
 

@@ -19,6 +19,7 @@ from restore.regeneration import (  # noqa: E402
     ProductMixture,
     RotatedProductMixture,
     StudentT,
+    TorusKernelMixture,
     UniformBox,
     UniformTorus,
     find_modes,
@@ -86,6 +87,7 @@ ALL_DISTS = {
     "student_t": lambda: StudentT(MEAN3, COV3, 5.0),
     "box": lambda: UniformBox(np.zeros(3), np.array([1.0, 2.0, 3.0])),
     "torus": lambda: UniformTorus(3),
+    "torus_kernels": lambda: TorusKernelMixture([[0.1, 0.5, 0.95], [0.7, 0.2, 0.4]], 0.1, 0.3, [0.0, 1.0]),
     "mixture": lambda: Mixture(
         [Gaussian(MEAN3, COV3), StudentT(-MEAN3, 1.0, 3.0)], [0.3, 0.7]
     ),
@@ -314,6 +316,44 @@ def test_uniform_torus():
             UniformTorus(bad_dim)
     with pytest.raises(TypeError, match="positive int"):  # a boolean is not a count
         UniformTorus(True)
+
+
+def test_torus_kernel_mixture_draws_follow_its_density():
+    """Kernels that wrap around the torus's edges; the draws' 2-d histogram against the density
+    integrated over each cell (chi-squared), the density's integral, and its support."""
+    dist = TorusKernelMixture([[0.02, 0.5], [0.9, 0.97]], 0.08, 0.3, np.log([0.7, 0.3]))
+    x = np.asarray(_sample(dist, KEY, N))
+    assert np.all((x >= 0) & (x < 1))
+    bins, sub = 10, 8
+    counts, _, _ = np.histogram2d(x[:, 0], x[:, 1], bins=bins, range=[[0, 1], [0, 1]])
+    g = (np.arange(bins * sub) + 0.5) / (bins * sub)
+    xx, yy = np.meshgrid(g, g, indexing="ij")
+    density = np.exp(_batched_log_prob(dist, np.stack([xx.ravel(), yy.ravel()], axis=1))).reshape(bins * sub, bins * sub)
+    cells = density.reshape(bins, sub, bins, sub).mean(axis=(1, 3)) / bins**2
+    assert abs(cells.sum() - 1) < 1e-3  # the midpoint rule's error
+    expected = N * cells / cells.sum()
+    assert st.chi2.sf(np.sum((counts - expected) ** 2 / expected), bins * bins - 1) > PVAL
+    # the uniform share bounds the density below; outside the torus it is -inf
+    assert density.min() >= 0.3 * (1 - 1e-12)
+    for bad in ([1.0, 0.5], [-1e-12, 0.5], [np.nan, 0.5]):
+        lp = _lp(dist, jnp.array(bad))
+        assert lp == -np.inf and not np.isnan(lp)
+
+
+@pytest.mark.parametrize(
+    "args, match",
+    [
+        (([0.1, 0.2], 0.1), "shape"),
+        (([[0.1, 1.2]], 0.1), r"\[0, 1\)"),
+        (([[0.1, 0.2]], 0.0), "bandwidth"),
+        (([[0.1, 0.2]], 0.6), "bandwidth"),
+        (([[0.1, 0.2]], 0.1, 1.0), "uniform_share"),
+        (([[0.1, 0.2]], 0.1, 0.5, [0.0, 0.0]), "log_weights"),
+    ],
+)
+def test_torus_kernel_mixture_errors(args, match):
+    with pytest.raises(ValueError, match=match):
+        TorusKernelMixture(*args)
 
 
 # -------------------------------------------------------------------- Mixture
