@@ -21,7 +21,7 @@ splats take the pixel the tracer found.
 `render` runs any of them to a time or evaluation budget and reports each renderer's
 diagnostics as a typed record (`RenderStatistics`: `RestoreStatistics`, `PSSMLTStatistics`,
 `ERPTStatistics`, `UniformStatistics`); `restore.render` metrics
-(`l1`, `mse`, `relative_mse`, `mrse`, `mape`, `variance_across`) compare images.
+(`l1`, `mse`, `relative_mse`, `mrse`, `mape`, `variance_across`, `relative_variance`) compare images.
 """
 
 from ._driver import RenderResult as RenderResult
@@ -38,6 +38,7 @@ from ._metrics import mape as mape
 from ._metrics import mrse as mrse
 from ._metrics import mse as mse
 from ._metrics import relative_mse as relative_mse
+from ._metrics import relative_variance as relative_variance
 from ._metrics import variance_across as variance_across
 from ._metropolis_restore import MetropolisRestore as MetropolisRestore
 from ._pss import EvaluatedPixel as EvaluatedPixel

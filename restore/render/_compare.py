@@ -25,7 +25,7 @@ import numpy as np
 from .._io import matplotlib_for, save_and_close, write_text
 from ._driver import render
 from ._methods import GRADIENT_METHODS, METHODS, P_LARGE, TOUR_LENGTH, default_lanes, make_renderer
-from ._metrics import l1, mape, mrse, mse, relative_mse, variance_across
+from ._metrics import l1, mape, mrse, mse, relative_mse, relative_variance, variance_across
 from ._restore_renderer import RestoreStatistics
 
 #: The primary-sample-space targets the PSS methods can run on.
@@ -38,8 +38,9 @@ DIAGNOSTICS = ("finishing_seconds", "tour_k_hat", "effective_tours", "tours_comp
 
 @dataclasses.dataclass
 class MethodRun:
-    """One render of one method on one scene, with its error curve `(seconds, relative MSE)` and
-    the renderer's diagnostics (`DIAGNOSTICS`, those it has)."""
+    """One render of one method on one scene, with its error curve `(seconds, relative MSE)`, a few
+    of its progressive images `(seconds, image)` (log-spaced in time, for the variance across
+    realisations over time) and the renderer's diagnostics (`DIAGNOSTICS`, those it has)."""
 
     scene: str
     method: str
@@ -50,6 +51,22 @@ class MethodRun:
     metrics: dict[str, float]
     curve: list[tuple[float, float]]
     diagnostics: dict[str, float] = dataclasses.field(default_factory=dict)
+    snapshots: list[tuple[float, np.ndarray]] = dataclasses.field(default_factory=list)
+
+
+#: Progressive images kept per render (log-spaced in time) for the variance over time.
+SNAPSHOTS = 16
+
+
+def thin_snapshots(snapshots: list[tuple[float, np.ndarray]], keep: int = SNAPSHOTS) -> list[tuple[float, np.ndarray]]:
+    """At most `keep` of `(seconds, image)` snapshots, the last always among them, the others
+    those nearest to log-spaced times from the first."""
+    if len(snapshots) <= keep:
+        return list(snapshots)
+    times = np.array([max(t, 1e-9) for t, _ in snapshots])
+    wanted = np.geomspace(times[0], times[-1], keep)
+    chosen = sorted({int(np.argmin(np.abs(np.log(times) - np.log(w)))) for w in wanted} | {len(snapshots) - 1})
+    return [snapshots[i] for i in chosen]
 
 
 @dataclasses.dataclass
@@ -84,27 +101,52 @@ class RenderComparison:
         after the budget) as if at equal time, for errors falling as 1 / time."""
         return self.mean_metric(scene, method) * self.mean_seconds(scene, method)
 
+    def median_normalised(self, scene: str, method: str) -> float:
+        """The median over realisations of relative MSE x seconds (one bad seed moves it less than the mean)."""
+        values = [r.metrics["relative_mse"] * r.seconds for r in self.runs if r.scene == scene and r.method == method]
+        return float(np.median(values)) if values else math.nan
+
     def ratios(self) -> list[tuple[str, str, float, str]]:
         """`(ratio, scene, value, goal)` rows: throughput, Restore / PSSMLT and Restore / path tracing,
         and each gradient Restore variant / its counterpart, where both ran (relative MSE x
         seconds, see `work_normalised`)."""
+        return [row[:4] for row in self._ratio_rows()]
+
+    def _ratio_rows(self) -> list[tuple[str, str, float, str, float]]:
+        """`ratios()` with, last, the same ratio of the medians over realisations (NaN for throughput)."""
         rows = []
         for scene in self.scenes:
             if scene in self.throughput:
                 pss, native = self.throughput[scene]
-                rows.append(("PSS paths/s / native path samples/s", scene, pss / native, ">= 0.5"))
+                rows.append(("PSS paths/s / native path samples/s", scene, pss / native, ">= 0.5", math.nan))
         mlt = "MMLT" if self.technique == "bdpt" else "pssmlt"
+        pairs = [("restore", other, f"Metropolis Restore / {mlt if other == 'pssmlt' else other}", goal) for other, goal in (("pssmlt", "<= 0.8"), ("path", "< 1"))]
+        pairs += [(variant, counterpart, label, "<= 0.8") for variant, counterpart, label in GRADIENT_PAIRS]
         for scene in self.scenes:
-            for other, goal in (("pssmlt", "<= 0.8"), ("path", "< 1")):
-                value = self.work_normalised(scene, "restore") / self.work_normalised(scene, other)
+            for method, other, label, goal in pairs:
+                value = self.work_normalised(scene, method) / self.work_normalised(scene, other)
                 if math.isfinite(value):
-                    name = mlt if other == "pssmlt" else other
-                    rows.append((f"relative MSE x time, Metropolis Restore / {name}", scene, value, goal))
-            for variant, counterpart, label in GRADIENT_PAIRS:
-                value = self.work_normalised(scene, variant) / self.work_normalised(scene, counterpart)
-                if math.isfinite(value):
-                    rows.append((f"relative MSE x time, {label}", scene, value, "<= 0.8"))
+                    median = self.median_normalised(scene, method) / self.median_normalised(scene, other)
+                    rows.append((f"relative MSE x time, {label}", scene, value, goal, median))
         return rows
+
+    def variance_curve(self, scene: str, method: str, points: int = 12) -> list[tuple[float, float]]:
+        """`(seconds, relative variance across realisations)` of `method`'s progressive images on
+        `scene` (`relative_variance` against the reference), at `points` log-spaced times that
+        every realisation reached: each contributes its last image at or before the time.
+        Empty with fewer than two realisations with images."""
+        runs = [r for r in self.runs if r.scene == scene and r.method == method and r.snapshots]
+        if len(runs) < 2:
+            return []
+        start = max(r.snapshots[0][0] for r in runs)
+        end = min(r.snapshots[-1][0] for r in runs)
+        if not (start > 0 and end >= start):
+            return []
+        curve = []
+        for t in np.geomspace(start, end, points) if end > start else [end]:
+            images = [next(image for time, image in reversed(r.snapshots) if time <= t * (1 + 1e-9)) for r in runs]
+            curve.append((float(t), relative_variance(images, self.references[scene])))
+        return curve
 
 
 #: The Restore variants of the gradient methods and their counterparts, as the Restore paper pairs them.
@@ -239,21 +281,28 @@ def compare_renderers(
                 if method == "path":
                     image, spp, elapsed, curve = _native_run(scene, reference, seconds, max_depth, seed=r)
                     evaluations = spp * resolution[0] * resolution[1]
+                    snapshots = []
                 else:
                     stamps: list[tuple[float, float]] = []
+                    images: list[np.ndarray] = []
+
+                    def update(img, _statistics, stamps=stamps, images=images, reference=reference):
+                        stamps.append((time.perf_counter(), relative_mse(img, reference)))
+                        images.append(img)
+
                     result = render(
                         pss_target, make_renderer(method, tour_length=tour_length, p_large=p_large), key=jax.random.key(1000 * r + 7),
-                        seconds=seconds, num_lanes=lanes_of[method], progress=progress,
-                        on_update=lambda img, _s: stamps.append((time.perf_counter(), relative_mse(img, reference))),  # noqa: B023
+                        seconds=seconds, num_lanes=lanes_of[method], progress=progress, on_update=update,
                     )
                     shift = stamps[-1][0] - result.seconds if stamps else 0.0
                     curve = [(t - shift, e) for t, e in stamps]
+                    snapshots = thin_snapshots([(t, image) for (t, _), image in zip(curve, images)])
                     image, elapsed, evaluations = result.image, result.seconds, result.evaluations
                     if isinstance(result.statistics, RestoreStatistics):
                         found = dict(result.statistics.as_dict(), finishing_seconds=result.finishing_seconds)
                         diagnostics = {k: float(found[k]) for k in DIAGNOSTICS}
                 run = MethodRun(
-                    scene_key, method, r, image, elapsed, evaluations, _metrics(image, reference), curve, diagnostics
+                    scene_key, method, r, image, elapsed, evaluations, _metrics(image, reference), curve, diagnostics, snapshots
                 )
                 runs.append(run)
                 say(f"{scene_key} {method} #{r}: {elapsed:.1f} s, {evaluations:,} paths, relative MSE {run.metrics['relative_mse']:.4g}")
@@ -300,10 +349,10 @@ def markdown(comparison: RenderComparison) -> str:
         "",
         "## Ratios",
         "",
-        "| ratio | scene | value | goal |",
-        "|---|---|---|---|",
+        "| ratio | scene | value (of means) | of medians | goal |",
+        "|---|---|---|---|---|",
     ]
-    lines += [f"| {name} | {scene} | **{_fmt(value)}** | {goal} |" for name, scene, value, goal in c.ratios()]
+    lines += [f"| {name} | {scene} | **{_fmt(value)}** | {_fmt(median)} | {goal} |" for name, scene, value, goal, median in c._ratio_rows()]
     for scene in c.scenes:
         lines += [
             "",
@@ -360,7 +409,8 @@ def _crop_window(reference: np.ndarray) -> tuple[slice, slice]:
 
 
 def plot_scene(comparison: RenderComparison, scene: str, path: Path) -> Path | None:
-    """Reference and first-realisation images, zoomed crops, and relative MSE against time."""
+    """Reference and first-realisation images, zoomed crops, relative MSE against time (every
+    realisation) and the variance across realisations against time (the PSS methods)."""
     matplotlib_for("the rendering comparison's figures")
     import matplotlib.patches
     import matplotlib.pyplot as plt
@@ -373,8 +423,8 @@ def plot_scene(comparison: RenderComparison, scene: str, path: Path) -> Path | N
         return None
     panels = [("reference", reference)] + [(m, firsts[m].image) for m in comparison.methods if m in firsts]
     ys, xs = _crop_window(reference)
-    fig = plt.figure(figsize=(2.2 * len(panels), 7.2), layout="constrained")
-    grid = fig.add_gridspec(3, len(panels), height_ratios=(1, 1, 1.3))
+    fig = plt.figure(figsize=(2.2 * len(panels), 10.0), layout="constrained")
+    grid = fig.add_gridspec(4, len(panels), height_ratios=(1, 1, 1.3, 1.3))
     for i, (name, image) in enumerate(panels):
         ax = fig.add_subplot(grid[0, i])
         ax.imshow(tonemap(image), interpolation="nearest")
@@ -393,6 +443,17 @@ def plot_scene(comparison: RenderComparison, scene: str, path: Path) -> Path | N
     ax.set(xscale="log", yscale="log", xlabel="wall time (s, compilation excluded)", ylabel="relative MSE", title=f"{scene}: error against time")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
+    ax = fig.add_subplot(grid[3, :])
+    for method in comparison.methods:
+        curve = comparison.variance_curve(scene, method)
+        if curve:
+            t, v = zip(*curve)
+            ax.plot(t, v, marker=".", color=f"C{comparison.methods.index(method)}", label=method)
+    ax.set(xscale="log", yscale="log", xlabel="wall time (s, compilation excluded)", ylabel="relative variance",
+           title=f"{scene}: variance across the {comparison.realisations} realisations against time")
+    ax.grid(True, which="both", alpha=0.3)
+    if ax.lines:
+        ax.legend(fontsize=8)
     save_and_close(fig, path, dpi=110)
     return path
 

@@ -74,3 +74,21 @@ def variance_across(images: ArrayLike) -> float:
     if images.ndim < 2 or images.shape[0] < 2:
         raise ValueError(f"need at least two realisations stacked on axis 0, got shape {images.shape}")
     return float(np.mean(np.var(images, axis=0, ddof=1)))
+
+
+def relative_variance(images: ArrayLike, reference: ArrayLike, eps: float = 1e-2) -> float:
+    """The variance across realisations relative to the reference, `mean var / (R^2 + eps)`: the
+    part of the expected relative MSE that is noise (`relative_mse` less the squared bias).
+
+    Arguments:
+        images: `(R, ...)` with `R >= 2` independent renders (unbiased variance, `ddof=1`).
+        reference: the reference image, shaped like one render.
+        eps: as in `relative_mse`.
+    """
+    if not eps > 0:
+        raise ValueError(f"eps must be positive, got {eps!r}")
+    images = np.asarray(images, np.float64)
+    if images.ndim < 2 or images.shape[0] < 2:
+        raise ValueError(f"need at least two realisations stacked on axis 0, got shape {images.shape}")
+    _, reference = _pair(images[0], reference)
+    return float(np.mean(np.var(images, axis=0, ddof=1) / (reference**2 + eps)))

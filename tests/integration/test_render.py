@@ -321,6 +321,10 @@ def test_metrics_on_hand_computed_arrays():
     stack = np.stack([image, reference, 2 * image])
     assert rr.variance_across(stack) == pytest.approx(np.mean(np.var(stack, axis=0, ddof=1)))
     assert rr.variance_across([[1.0, 3.0], [3.0, 5.0]]) == pytest.approx(2.0)
+    # the variance relative to the reference: [[1, 3], [3, 5]] has variance 2 per element
+    assert rr.relative_variance([[1.0, 3.0], [3.0, 5.0]], [1.0, 0.0]) == pytest.approx((2 / 1.01 + 2 / 0.01) / 2)
+    with pytest.raises(ValueError, match="two realisations"):
+        rr.relative_variance(image[None], reference)
     with pytest.raises(ValueError, match="zero"):
         rr.mrse(image, np.zeros_like(reference))
     with pytest.raises(ValueError, match="shapes"):

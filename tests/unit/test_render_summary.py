@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from restore.render import ERPTStatistics, PSSMLTStatistics, RenderResult, RestoreStatistics, UniformStatistics
-from restore.render._compare import MethodRun, RenderComparison
+from restore.render._compare import MethodRun, RenderComparison, thin_snapshots
 from restore.render._methods import make_renderer
 from restore.render._renderer import TAIL_WARNING
 from restore.render._summary import native_rows, reliability, render_rows
@@ -74,3 +74,38 @@ def test_the_comparison_pairs_each_gradient_restore_variant_with_its_counterpart
     rows = {name: (value, goal) for name, _, value, goal in comparison.ratios()}
     assert rows["relative MSE x time, MALA Restore / MALA"] == (pytest.approx(0.8), "<= 0.8")
     assert not any("H2MC" in name for name in rows)  # H2MC Restore did not run
+
+
+def test_the_comparison_gives_ratios_of_medians_and_the_variance_across_realisations_over_time():
+    """The median ratio follows the typical seed where one bad seed moves the mean; the variance
+    over time takes each realisation's last image at or before each time."""
+    reference = np.ones((1, 1, 3))
+
+    def run(method, r, mse, seconds, snapshots=()):
+        return MethodRun("door", method, r, reference, seconds, 1, {"relative_mse": mse}, [], {}, list(snapshots))
+
+    # mala-restore: 0.5 x mala in two seeds of three, 10 x in the third
+    runs = [run("mala", r, 0.01, 10.0) for r in range(3)]
+    runs += [run("mala-restore", r, mse, 10.0) for r, mse in enumerate((0.005, 0.005, 0.1))]
+    # two realisations of restore whose images differ by 2 at 1 s and by 0.2 (in one channel) at 4 s
+    images = {1.0: (np.full((1, 1, 3), 0.0), np.full((1, 1, 3), 2.0)), 4.0: (reference, reference + [0.0, 0.0, 0.2])}
+    runs += [run("restore", r, 0.1, 4.0, [(t, images[t][r]) for t in (1.0, 4.0)]) for r in range(2)]
+    comparison = RenderComparison(("door",), ("mala", "mala-restore", "restore"), 4.0, 3, (1, 1), 5, {"door": reference}, runs, {}, {})
+    rows = {row[0]: row for row in comparison._ratio_rows()}
+    assert rows["relative MSE x time, MALA Restore / MALA"][2] == pytest.approx(11 / 3)  # of means
+    assert rows["relative MSE x time, MALA Restore / MALA"][4] == pytest.approx(0.5)  # of medians
+    curve = comparison.variance_curve("door", "restore", points=3)
+    assert [t for t, _ in curve] == pytest.approx([1.0, 2.0, 4.0])
+    variance_early = 2.0 / 1.01  # per element (0 - 2)^2 / 2 over (1 + eps)
+    variance_late = 0.02 / 1.01 / 3  # one channel of three
+    assert [v for _, v in curve] == pytest.approx([variance_early, variance_early, variance_late])
+    assert comparison.variance_curve("door", "mala") == []  # no images kept
+
+
+def test_snapshots_are_thinned_to_log_spaced_times_keeping_the_last():
+    snapshots = [(float(t), np.zeros(1)) for t in range(1, 101)]
+    kept = thin_snapshots(snapshots, keep=5)
+    times = [t for t, _ in kept]
+    assert len(kept) <= 5 and times[0] == 1.0 and times[-1] == 100.0
+    assert times == sorted(times) and 3.0 <= times[1] <= 4.0  # near 100^(1/4) = 3.2
+    assert thin_snapshots(snapshots[:3], keep=5) == snapshots[:3]
