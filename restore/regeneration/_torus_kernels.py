@@ -14,6 +14,7 @@ from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
 from .._validation import as_float_array, check_point, check_shape, is_concrete
 from ._base import AbstractRegeneration
+from ._utils import component_indices
 
 
 @final
@@ -104,9 +105,7 @@ class TorusKernelMixture(AbstractRegeneration):
         dtype = self.centres.dtype
         k_pick, k_centre, k_offset, k_uniform = jax.random.split(key, 4)
         uniform = jax.random.uniform(k_uniform, shape + (self.dim,), dtype)
-        cumulative = jnp.cumsum(jnp.exp(self.log_weights))  # inverse CDF: O(log K) a draw, where `categorical` draws K Gumbels
-        pick = jnp.searchsorted(cumulative, jax.random.uniform(k_centre, shape, dtype) * cumulative[-1], side="right")
-        centre = self.centres[jnp.minimum(pick, self.num_components - 1)]
+        centre = self.centres[component_indices(k_centre, self.log_weights, shape, dtype)]
         a = self._half_width()
         offset = self.bandwidth * jax.random.truncated_normal(k_offset, -a, a, shape + (self.dim,), dtype)
         kernel = centre + offset

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import equinox as eqx
-import jax
 from jaxtyping import Array, Float, PRNGKeyArray
 
 from ..regeneration import TorusKernelMixture
@@ -60,7 +59,3 @@ class LearnedRegeneration(eqx.Module):
     def distribution(self, centres: Float[Array, "K D"]) -> TorusKernelMixture:
         """The regeneration density with these centres."""
         return TorusKernelMixture(centres, self.bandwidth, self.uniform_share)
-
-    def log_density(self, centres: Float[Array, "K D"], u: Float[Array, "N D"]) -> Float[Array, " N"]:
-        """`log q` at points `u` (e.g. the bootstrap's, for a stationary start)."""
-        return jax.vmap(self.distribution(centres).log_prob)(u)

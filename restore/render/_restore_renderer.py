@@ -413,8 +413,8 @@ class AbstractPSSRestore(AbstractRenderer):
         if self.start == "uniform":  # tour starts, drawn by the sampler
             states = jax.vmap(sampler.init)(keys)
         else:  # resample the bootstrap with weights lum + c q: the jump chain's stationary law
-            regenerations = params.rate if self.learned is None else params.rate * jnp.exp(self.learned.log_density(centres, boot.position))
-            index = resample(k_pick, lum + regenerations, lanes)
+            q = jnp.exp(jax.vmap(sampler.regeneration.log_prob)(boot.position))  # 1 for the uniform regeneration
+            index = resample(k_pick, lum + params.rate * q, lanes)
             states = jax.vmap(sampler.init)(keys, boot.position[index])
         zeros, ones = jnp.zeros(lanes, jnp.int32), jnp.ones(lanes, bool)
         return RestoreRenderState(
