@@ -27,7 +27,8 @@ lane-steps each: 512 x 12,800, 8,192 x 800, 65,536 x 100), which shows any cost 
 with the lanes (host work between chunks, say): BlackJAX RMH, the bare step,
 `restore.sample` for the budget's steps alone (`finish_tours=False`) and with its open
 tours finished after the budget (`num_chunks=1, save=restore.SaveDraws(0)`, as the ratios of set-up 1),
-and the steps the finishing took. `--sweep-only` runs the sweep alone, `--no-sweep` skips it.
+the steps the finishing took, and the finished run's `log Z` error against the exact value.
+`--sweep-only` runs the sweep alone, `--no-sweep` skips it.
 
 `--sweep-lanes` and `--lane-steps` change the sweep's sizes (a GPU needs more lanes and
 lane-steps than a CPU before its fixed costs stop dominating).
@@ -205,6 +206,9 @@ def lanes_sweep(dim: int, rounds: int, lane_steps: int = 6_553_600, lanes_list: 
             size = f"{lanes:,} x {steps:,}" if label == "BlackJAX RMH" else "."
             print(f"{size:>16s} {label:31s} {lanes * steps / float(np.median(seconds)) / 1e6:10.3f} {ratio:11.2f}")
         print(f"{'':16s} finishing after the budget: {finishing.finishing_steps} steps, {finishing.unfinished_tours} tours still open")
+        log_z, exact = finishing.normalising_constant(), 0.5 * dim * math.log(2 * math.pi)
+        verdict = "reliable" if log_z.reliable else "UNRELIABLE"
+        print(f"{'':16s} its log Z: error {log_z.value - exact:+.4f} ({(log_z.value - exact) / log_z.standard_error:+.1f} SE), {verdict}")
     most, fewest = max(lanes_list), min(lanes_list)
     for label in ("restore.sample, budget only", "restore.sample"):
         print(f"{label}: ratio at {most:,} lanes / ratio at {fewest:,} lanes = {ratios[most, label] / ratios[fewest, label]:.2f}")

@@ -40,7 +40,17 @@ from ._driver import Budget, Meter, drive
 from ._observables import Observables
 from ._options import Checkpoint, SaveDraws, as_checkpoint
 from ._result import SampleResult
-from ._run_loop import CarryShape, Chunk, RunCarry, advance, carry_shardings, finish, finishing_width, start_carry
+from ._run_loop import (
+    CarryShape,
+    Chunk,
+    RunCarry,
+    advance,
+    carry_shardings,
+    finish,
+    finishing_limit,
+    finishing_width,
+    start_carry,
+)
 from ._sampler import AbstractSampler, check_sampler
 from ._sharding import (
     Devices,
@@ -370,7 +380,7 @@ class Run:
         if self.sampler.has_tours and not self.interrupted and self.finish_tours and not self.finished:
             budget_run = _copied(self.committed)  # the finishing takes the run's buffers; Ctrl-C during it returns this
             try:
-                limit = jnp.asarray(self.num_steps, jnp.int32)
+                limit = jnp.asarray(finishing_limit(self.num_steps, self.width), jnp.int32)
                 if self.width is None:  # every lane until the last open tour ends
                     ended, report = advance(self._chunk(limit, True), self.committed)
                 else:  # a narrower batch of the open lanes

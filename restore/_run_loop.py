@@ -17,7 +17,9 @@ mostly step lanes that are done. `finish` steps a narrower batch of `width` slot
 each holding one open lane: a lane whose tour ends is written back and its slot takes
 the next open lane. Lane `i`'s `j`-th finishing step draws with the key of global step
 `N + j` (`N` the budget), as a step of every lane would, so its path is the same whatever
-the width.
+the width. A lane may take up to `N` finishing steps at full width and ten times as many
+in the narrow batch (`finishing_limit`); a tour still open then is left out, and the run
+says so.
 """
 
 from __future__ import annotations
@@ -350,9 +352,24 @@ NARROW_FINISH_LANES = 4096
 NARROW_FACTOR = 32
 
 
+#: In the narrow batch a lane may take up to this many times the budget's steps to end its
+#: open tour; at full width, up to the budget's steps. A long tour holds one slot of the
+#: narrow batch, where at full width it costs a step of every lane, so the narrow batch can
+#: afford to finish the rare long tours that a cap of the budget's steps would leave open
+#: (and the run's estimates unreliable): `docs/benchmarks.md`.
+NARROW_FINISHING_STEPS = 10
+
+
 def finishing_width(num_lanes: int) -> int | None:
     """Slots of the narrow finishing batch, or `None` to finish at full width."""
     return max(1, num_lanes // NARROW_FACTOR) if num_lanes >= NARROW_FINISH_LANES else None
+
+
+def finishing_limit(num_steps: int, width: int | None) -> int:
+    """The most finishing steps a lane may take after a budget of `num_steps` (`width`: the
+    narrow batch's, or `None` at full width), within the run's int32 step counter."""
+    limit = num_steps * (1 if width is None else NARROW_FINISHING_STEPS)
+    return max(num_steps, min(limit, np.iinfo(np.int32).max - num_steps))
 
 
 def _finish_lanes(sampler, observe, states, sums, histogram, tails, lane, lane_keys, step, limit, rao_blackwell: bool, width: int):

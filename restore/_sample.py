@@ -53,8 +53,9 @@ def sample(
         save: the draws to keep (`restore.SaveDraws`: a budget of 100,000 by default).
         progress: show a progress bar (updated between chunks: it costs nothing inside them).
         num_chunks: chunks the run is cut into, for the progress bar and checkpoints.
-        finish_tours: after the budget, run each open tour to its end (at most `num_steps` more
-            steps), so that the estimates are not biased to short tours; `False` drops them.
+        finish_tours: after the budget, run each open tour to its end, so that the estimates are
+            not biased to short tours (`False` drops them): at most `num_steps` more steps, or ten
+            times as many from 4,096 lanes a device, which finish in a narrow batch.
         devices: split the lanes over devices (`None`: the default one; an int `n`: the first
             `n`; `"all"`; devices or a `jax.sharding.Mesh`), with the same per-lane paths as
             on one device; across hosts after `jax.distributed.initialize()` (`docs/scaling.md`).

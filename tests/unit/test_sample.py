@@ -125,3 +125,25 @@ def test_calibrated_to_sets_the_rate_from_a_known_log_z_and_keeps_the_tour_lengt
         calibrated.calibrated_to(1.0)
     with pytest.raises(ValueError, match="needs a sampler given a tour_length"):
         restore.JumpRestore(std_normal, RandomWalk(1.0), Gaussian(jnp.zeros(2), 2.0), log_rate=0.0).calibrated_to(1.0)
+
+
+def test_the_narrow_batch_finishes_the_tours_that_outlast_the_budget(monkeypatch):
+    """At full width a lane may take as many finishing steps as the budget had; in the narrow batch
+    (`restore._run_loop.NARROW_FINISHING_STEPS` times as many), where a long tour holds one slot. In a
+    20-step run a fifth of the open tours outlast 20 more steps: at full width they are left open and
+    `log Z` is off by 6 standard errors, flagged unreliable (the negative control); the narrow batch
+    ends every tour and `log Z` is right."""
+    sampler = restore.JumpRestore(std_normal, RandomWalk(0.75), Gaussian(jnp.zeros(2), 2.25 * jnp.eye(2)), tour_length=10.0)
+    kwargs = dict(num_lanes=256, num_steps=20, progress=False, save=restore.SaveDraws(0))
+    log_z = np.log(2 * np.pi)
+    with pytest.warns(RuntimeWarning, match="still had an open tour after 20 extra steps"):
+        wide = restore.sample(sampler, jax.random.key(0), **kwargs)
+    assert wide.unfinished_tours > 20
+    with pytest.warns(restore.UnreliableEstimateWarning):
+        estimate = wide.normalising_constant()
+    assert not estimate.reliable and abs(float(estimate.z_score(log_z))) > 4
+    monkeypatch.setattr("restore._run_loop.NARROW_FINISH_LANES", 1)  # 256 lanes finish 8 at a time
+    narrow = restore.sample(sampler, jax.random.key(0), **kwargs)
+    assert narrow.unfinished_tours == 0 and 20 < narrow.finishing_steps <= 200
+    estimate = narrow.normalising_constant()
+    assert estimate.reliable and abs(float(estimate.z_score(log_z))) < 3
