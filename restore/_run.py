@@ -41,14 +41,17 @@ from ._observables import Observables
 from ._options import Checkpoint, SaveDraws, as_checkpoint
 from ._result import SampleResult
 from ._run_loop import (
+    FINISHING_CALL,
     CarryShape,
     Chunk,
     RunCarry,
+    active,
     advance,
     carry_shardings,
     finish,
     finishing_limit,
     finishing_width,
+    fold_finishing,
     start_carry,
 )
 from ._sampler import AbstractSampler, check_sampler
@@ -313,10 +316,10 @@ class Run:
         self.width = finishing_width(num_lanes // (1 if sharding is None else sharding.num_devices))
         self.session_start = time.perf_counter()
 
-    def _chunk(self, length, finishing: bool, width: int = 0) -> Chunk:
+    def _chunk(self, length, finishing: bool, width: int = 0, taken: Array | None = None, limit: Array | None = None) -> Chunk:
         return Chunk(
             self.sampler, self.observe, self.lane_keys, jnp.asarray(length, jnp.int32), jnp.asarray(finishing), self.thin,
-            self.rao_blackwell, self.sharding, width,
+            self.rao_blackwell, self.sharding, width, taken, limit,
         )  # fmt: skip
 
     def _dispatch(self, length: int) -> Callable[[], int]:
@@ -350,7 +353,8 @@ class Run:
         ):  # fmt: skip
             # the narrow finishing program compiles in the background while the budget runs
             zero, carry = np.zeros((), np.int32), self.committed
-            chunk = Chunk(self.sampler, self.observe, self.lane_keys, zero, np.zeros((), bool), zero, self.rao_blackwell, None, self.width)
+            taken = np.zeros((self.num_lanes,), np.int32)
+            chunk = Chunk(self.sampler, self.observe, self.lane_keys, zero, np.zeros((), bool), zero, self.rao_blackwell, None, self.width, taken, zero)
             inputs = (self.sampler, self.observe, carry, self.lane_keys, self.rao_blackwell, self.width)
             finisher = compile_ahead(finish, lambda: (chunk, _zeros_like(carry)), inputs)
         self.finisher = finisher
@@ -380,14 +384,7 @@ class Run:
         if self.sampler.has_tours and not self.interrupted and self.finish_tours and not self.finished:
             budget_run = _copied(self.committed)  # the finishing takes the run's buffers; Ctrl-C during it returns this
             try:
-                limit = jnp.asarray(finishing_limit(self.num_steps, self.width), jnp.int32)
-                if self.width is None:  # every lane until the last open tour ends
-                    ended, report = advance(self._chunk(limit, True), self.committed)
-                else:  # a narrower batch of the open lanes
-                    wait(self.finisher)
-                    ended, report = finish(self._chunk(limit, True, self.width), self.committed)
-                extra, still_open = int(report.steps), int(report.open_tours)  # waits for the finishing
-                self.committed, self.finishing_steps, self.unfinished = ended, extra, still_open
+                self.committed, self.finishing_steps, self.unfinished = self._finish_tours()
             except KeyboardInterrupt:  # keep the budget's result; its open tours are dropped
                 self.committed, self.interrupted = budget_run, True
                 warn("interrupted while finishing the open tours; returning the result without them")
@@ -403,6 +400,34 @@ class Run:
                 "run: the regeneration barely covers a region where the target has mass, or the density's mass is infinite)",
                 RuntimeWarning,
             )
+
+    def _finish_tours(self) -> tuple[RunCarry, int, int]:
+        """The carry with each open tour run to its end (or to its lane's `finishing_limit`), the
+        steps that took and the tours still open.
+
+        At full width in one call; in the narrow batch in calls of at most `FINISHING_CALL`
+        steps of the batch, with a progress bar between them (a lane may take up to ten times
+        the budget's steps there, `_run_loop.NARROW_FINISHING_STEPS`), and Ctrl-C taken
+        within one call.
+        """
+        limit = jnp.asarray(finishing_limit(self.num_steps, self.width), jnp.int32)
+        if self.width is None:  # every lane until the last open tour ends
+            carry, report = advance(self._chunk(limit, True), self.committed)
+            return carry, int(report.steps), int(report.open_tours)
+        wait(self.finisher)
+        carry, steps = self.committed, 0
+        taken = jnp.zeros((self.num_lanes,), jnp.int32)
+        if self.sharding is not None:
+            taken = put(taken, self.sharding.lanes)
+        opened = int(jnp.sum(active(carry.sums), dtype=jnp.int32))
+        meter = Meter(self.progress and opened > 0, "finishing the open tours (none start)", opened, "tours")
+        with meter.shown():
+            while True:
+                carry, report, finished = finish(self._chunk(FINISHING_CALL, True, self.width, taken, limit), carry)
+                taken, steps, still_open = finished.taken, steps + int(report.steps), int(report.open_tours)
+                meter.update(opened - still_open, f"{still_open:,} open, {steps:,} steps")
+                if int(finished.waiting) == 0:
+                    return fold_finishing(carry, self.sharding), steps, still_open
 
     def result(self) -> SampleResult:
         """The run's result, read from the device once (gathered over devices and processes)."""

@@ -19,7 +19,10 @@ the next open lane. Lane `i`'s `j`-th finishing step draws with the key of globa
 `N + j` (`N` the budget), as a step of every lane would, so its path is the same whatever
 the width. A lane may take up to `N` finishing steps at full width and ten times as many
 in the narrow batch (`finishing_limit`); a tour still open then is left out, and the run
-says so.
+says so. The narrow batch runs in calls of `FINISHING_CALL` of its steps (a progress bar
+and Ctrl-C between them); the lanes still in a slot at the end of a call are written back
+and taken again by the next, and the finishing's sums join the totals once, after the
+last call (`fold_finishing`), so they do not depend on where the calls end.
 """
 
 from __future__ import annotations
@@ -46,7 +49,7 @@ from ._accumulators import (
     update_histogram,
     update_step_sums,
 )
-from ._compile import jit_chunk
+from ._compile import jit, jit_chunk
 from ._exceedances import append, make_room
 from ._observables import Observables
 from ._sharding import LaneSharding, map_devices, map_lanes
@@ -226,12 +229,21 @@ def _per_device(tree):
 
 def _end_chunk(carry: RunCarry, steps: Array) -> tuple[RunCarry, ChunkReport]:
     """The chunk's report, and the carry with the chunk's sums and histogram added to the totals and restarted."""
+    return _folded(carry), _report(carry, steps)
+
+
+def _report(carry: RunCarry, steps: Array) -> ChunkReport:
     s = carry.sums
-    report = ChunkReport(
+    return ChunkReport(
         steps, jnp.sum(s.all_t), jnp.sum(s.num_accepted), jnp.sum(s.num_regenerations), jnp.sum(active(s), dtype=jnp.int32)
     )
+
+
+def _folded(carry: RunCarry) -> RunCarry:
+    """The carry with the chunk's sums and histogram added to the totals and restarted."""
+    s = carry.sums
     totals = fold(carry.totals, s, carry.histogram)
-    return carry._replace(sums=restart_sums(s), histogram=jax.tree.map(jnp.zeros_like, carry.histogram), totals=totals), report
+    return carry._replace(sums=restart_sums(s), histogram=jax.tree.map(jnp.zeros_like, carry.histogram), totals=totals)
 
 
 def _observed_step(sampler_and_observe, key, state):
@@ -248,13 +260,16 @@ class Chunk(NamedTuple):
         sampler: the sampler.
         observe: the observables.
         lane_keys: each lane's key.
-        length: steps of the chunk (finishing: at most this many per lane); NumPy scalars
-            (here and in `finishing` and `thin`) only where a chunk is built to compile ahead.
+        length: steps of the chunk (finishing at full width: at most this many per lane;
+            `finish`: iterations of the narrow batch); NumPy arrays (here and in `finishing`,
+            `thin`, `taken` and `limit`) only where a chunk is built to compile ahead.
         finishing: finish the open tours (start none), else run the step budget.
         thin: store the state every `thin` steps.
         rao_blackwell: weigh by the expected holding times (static).
         sharding: how the lanes are split over devices (static; `None` on one device).
         width: slots of the narrow finishing batch (`finish` only; static).
+        taken: the finishing steps each lane took in earlier calls (`finish` only).
+        limit: the most finishing steps a lane may take (`finish` only).
     """
 
     sampler: Any
@@ -266,6 +281,8 @@ class Chunk(NamedTuple):
     rao_blackwell: bool
     sharding: LaneSharding | None = None
     width: int = 0
+    taken: Array | np.ndarray | None = None
+    limit: Array | np.ndarray | None = None
 
 
 @jit_chunk
@@ -289,7 +306,7 @@ def advance(chunk: Chunk, carry: RunCarry) -> tuple[RunCarry, ChunkReport]:
     do not talk to each other within a chunk (when finishing, they agree at every step
     whether any lane is still in a tour); the chunk's report is a sum over them.
     """
-    sampler, observe, lane_keys, length, finishing, thin, rao_blackwell, sharding, _ = chunk
+    sampler, observe, lane_keys, length, finishing, thin, rao_blackwell, sharding = chunk[:8]
 
     def cond(loop):
         carry, done = loop
@@ -359,6 +376,10 @@ NARROW_FACTOR = 32
 #: (and the run's estimates unreliable): `docs/benchmarks.md`.
 NARROW_FINISHING_STEPS = 10
 
+#: The narrow batch's steps per call of `finish`: between calls the host shows the progress
+#: of the finishing and takes Ctrl-C.
+FINISHING_CALL = 128
+
 
 def finishing_width(num_lanes: int) -> int | None:
     """Slots of the narrow finishing batch, or `None` to finish at full width."""
@@ -372,14 +393,20 @@ def finishing_limit(num_steps: int, width: int | None) -> int:
     return max(num_steps, min(limit, np.iinfo(np.int32).max - num_steps))
 
 
-def _finish_lanes(sampler, observe, states, sums, histogram, tails, lane, lane_keys, step, limit, rao_blackwell: bool, width: int):
-    """Run each lane's open tour to its end (at most `limit` steps), `width` lanes at a time (see the module docstring).
+def _finish_lanes(
+    sampler, observe, states, sums, histogram, tails, lane, taken, lane_keys, base, limit, iterations, rao_blackwell: bool, width: int
+):
+    """Run each lane's open tour towards its end, `width` lanes at a time (see the module
+    docstring), for at most `iterations` steps of the batch; a lane stops when its tour ends
+    or it has taken `limit` finishing steps.
 
-    Returns the lanes' states and sums, the histogram and tails, and the most steps any lane took.
+    `taken`: the finishing steps each lane has taken; its `j`-th draws with the key of step
+    `base + j`. Returns the lanes' states and sums (those still in a slot written back, to
+    go on in the next call), the histogram, the tails and `taken`.
     """
     num_lanes = lane.shape[0]
     batch = event_batch(sampler, width)
-    open_ = active(sums)
+    open_ = active(sums) & (taken < limit)
     queue = batch_lanes(open_, jnp.cumsum(open_, dtype=jnp.int32) - 1, jnp.zeros((), jnp.int32), num_lanes)  # open lanes in order
     total = jnp.sum(open_, dtype=jnp.int32)
     take = lambda tree, index: jax.tree.map(lambda a: a[index], tree)
@@ -391,86 +418,122 @@ def _finish_lanes(sampler, observe, states, sums, histogram, tails, lane, lane_k
         sums: LaneSums
         histogram: Any
         tails: Any
+        taken: Array  # finishing steps each lane has taken (up to date for the lanes not in a slot)
         slot_lane: Array  # the lane each slot holds
         slot_states: Any
         slot_sums: LaneSums
         slot_steps: Array  # finishing steps the slot's lane has taken
         live: Array  # the slot holds an open lane
         next: Array  # queue position of the next lane to take
-        most: Array  # the most finishing steps of any lane so far
+        done: Array  # iterations run
 
     def cond(loop: Loop) -> Array:
-        return jnp.any(loop.live)
+        return jnp.any(loop.live) & (loop.done < iterations)
 
     def body(loop: Loop) -> Loop:
-        keys = jax.vmap(lambda k, j: jax.random.fold_in(k, step + j))(lane_keys[loop.slot_lane], loop.slot_steps)
+        keys = jax.vmap(lambda k, j: jax.random.fold_in(k, base + j))(lane_keys[loop.slot_lane], loop.slot_steps)
         new_states, info = sampler.step_lanes(keys, loop.slot_states)
         values = jax.vmap(observe)(info.position)
         t = _tally(loop.slot_states, loop.slot_sums, loop.histogram, loop.tails, loop.slot_lane, new_states, info, values, rao_blackwell, batch, loop.live)
         histogram, tails = t.histogram, t.tails
         ended = counted_ends(loop.slot_sums, info) & loop.live
-        taken = loop.slot_steps + loop.live.astype(jnp.int32)
-        done = loop.live & (ended | (taken >= limit))  # the tour ended, or the lane ran out of steps
+        slot_steps = loop.slot_steps + loop.live.astype(jnp.int32)
+        done = loop.live & (ended | (slot_steps >= limit))  # the tour ended, or the lane ran out of steps
         # the lanes that are done go back to their places...
         home = jnp.where(done, loop.slot_lane, num_lanes)  # out of range: not written
         put = lambda full, part: full.at[home].set(part, mode="drop")
         states, sums = jax.tree.map(put, loop.states, t.states), jax.tree.map(put, loop.sums, t.sums)
+        taken = put(loop.taken, slot_steps)
         # ...and their slots take the next open lanes of the queue
         position = loop.next + jnp.cumsum(done, dtype=jnp.int32) - 1
         refill = done & (position < total)
         new_lane = jnp.where(refill, queue[jnp.minimum(position, num_lanes - 1)], loop.slot_lane)
         fresh = lambda full, part: jnp.where(refill.reshape((-1,) + (1,) * (part.ndim - 1)), full[new_lane], part)
         return Loop(
-            states, sums, histogram, tails, new_lane,
+            states, sums, histogram, tails, taken, new_lane,
             jax.tree.map(fresh, states, t.states), jax.tree.map(fresh, sums, t.sums),
-            jnp.where(refill, 0, taken), (loop.live & ~done) | refill,
-            loop.next + jnp.sum(done, dtype=jnp.int32), jnp.maximum(loop.most, jnp.max(taken)),
+            jnp.where(refill, taken[new_lane], slot_steps), (loop.live & ~done) | refill,
+            loop.next + jnp.sum(done, dtype=jnp.int32), loop.done + 1,
         )  # fmt: skip
 
     zero = jnp.zeros_like(total)  # varies with the lanes, as the loop's results do (under `shard_map`)
     start = Loop(
-        states, sums, histogram, tails, first, take(states, first), take(sums, first), jnp.zeros((width,), jnp.int32) + zero,
-        slots < total, jnp.minimum(total, width), zero,
+        states, sums, histogram, tails, taken, first, take(states, first), take(sums, first), taken[first],
+        slots < total, jnp.minimum(total, width) + zero, zero,
     )  # fmt: skip
     end = jax.lax.while_loop(cond, body, start)
-    return end.states, end.sums, end.histogram, end.tails, end.most
+    home = jnp.where(end.live, end.slot_lane, num_lanes)  # the lanes still in a slot go back to their places
+    put = lambda full, part: full.at[home].set(part, mode="drop")
+    states, sums = jax.tree.map(put, end.states, end.slot_states), jax.tree.map(put, end.sums, end.slot_sums)
+    return states, sums, end.histogram, end.tails, put(end.taken, end.slot_steps)
+
+
+class Finished(NamedTuple):
+    """What a call of `finish` gives back besides the carry and its report.
+
+    Attributes:
+        taken: the finishing steps each lane has taken (`Chunk.taken` of the next call).
+        waiting: lanes whose tour is still open and that may still step (none: finishing is over).
+    """
+
+    taken: Array
+    waiting: Array
 
 
 @jit_chunk
-def finish(chunk: Chunk, carry: RunCarry) -> tuple[RunCarry, ChunkReport]:
-    """Run every open tour to its end, at most `length` steps each, `width` lanes at a time (see the module docstring).
+def finish(chunk: Chunk, carry: RunCarry) -> tuple[RunCarry, ChunkReport, Finished]:
+    """Run the open tours towards their end, `width` lanes at a time, for at most `length`
+    iterations of the batch (see the module docstring); called until no lane is `waiting`.
 
-    No tour starts: a lane whose tour ends stops there. With a `sharding`, each device
-    finishes its own lanes (`width` slots each), without talking to the others. The carry
-    is donated.
+    No tour starts: a lane whose tour ends stops there, as does one that has taken `limit`
+    finishing steps. `carry.step` is the budget's steps plus the most finishing steps any
+    lane has taken (`chunk.taken`), so the report's `steps` are those the call added to
+    that most; its other sums cover the calls since the budget. After the last call (none
+    `waiting`), `fold_finishing` adds the sums and histogram to the totals: once, so that a
+    lane's sums are the same, bit for bit, however its finishing steps fell into calls. With a `sharding`, each device finishes its own lanes (`width` slots each),
+    without talking to the others. The carry is donated.
     """
-    sampler, observe, lane_keys, limit, _, _, rao_blackwell, sharding, width = chunk
+    sampler, observe, lane_keys, iterations, rao_blackwell, sharding, width, taken, limit = (
+        chunk.sampler, chunk.observe, chunk.lane_keys, chunk.length, chunk.rao_blackwell, chunk.sharding, chunk.width, chunk.taken, chunk.limit,
+    )  # fmt: skip
+    if taken is None or limit is None:
+        raise ValueError("finish needs the finishing steps each lane took so far (`taken`) and their `limit`")
     lane_keys = unrolled_keys(lane_keys)
-    args = (carry.states, carry.sums, carry.histogram, carry.tails, carry.lane, lane_keys)
+    most = jnp.max(taken)
+    base = carry.step - most  # the budget's steps
+    args = (carry.states, carry.sums, carry.histogram, carry.tails, carry.lane, taken, lane_keys)
     if sharding is None:
-        states, sums, histogram, tails, most = _finish_lanes(sampler, observe, *args, carry.step, limit, rao_blackwell, width)
+        states, sums, histogram, tails, taken = _finish_lanes(sampler, observe, *args, base, limit, iterations, rao_blackwell, width)
     else:
 
-        def local(sampler_and_observe, states, sums, histogram, tails, lane, lane_keys, step, limit):
+        def local(sampler_and_observe, states, sums, histogram, tails, lane, taken, lane_keys, base, limit, iterations):
             sampler, observe = sampler_and_observe
             h, b = _one_device(histogram), _one_device(tails)
-            out = _finish_lanes(sampler, observe, states, sums, h, b, lane, lane_keys, step, limit, rao_blackwell, width)
-            states, sums, h, b, most = out
-            return states, sums, _per_device(h), _per_device(b), most[None]
+            out = _finish_lanes(sampler, observe, states, sums, h, b, lane, taken, lane_keys, base, limit, iterations, rao_blackwell, width)
+            states, sums, h, b, taken = out
+            return states, sums, _per_device(h), _per_device(b), taken
 
         arrays, static = eqx.partition((sampler, observe), eqx.is_array)
         lanes, replicated = sharding.lanes.spec, jax.sharding.PartitionSpec()
         mapped = jax.shard_map(
             lambda arrays, *rest: local(eqx.combine(arrays, static), *rest),
             mesh=sharding.mesh,
-            in_specs=(replicated,) + (lanes,) * 6 + (replicated, replicated),
+            in_specs=(replicated,) + (lanes,) * 7 + (replicated,) * 3,
             out_specs=(lanes,) * 5,
         )
-        states, sums, histogram, tails, most = mapped(arrays, *args, carry.step, limit)
-        most = jnp.max(most)
-    carry = carry._replace(states=states, sums=sums, histogram=histogram, tails=tails, step=carry.step + most)
-    carry, report = _end_chunk(carry, most)
+        states, sums, histogram, tails, taken = mapped(arrays, *args, base, limit, iterations)
+    added = jnp.max(taken) - most
+    carry = carry._replace(states=states, sums=sums, histogram=histogram, tails=tails, step=carry.step + added)
+    report = _report(carry, added)
+    waiting = jnp.sum(active(carry.sums) & (taken < limit), dtype=jnp.int32)
     if sharding is not None:
         carry = jax.lax.with_sharding_constraint(carry, carry_shardings(carry, sharding))
-    return carry, report
+    return carry, report, Finished(taken, waiting)
 
+
+@jit(once=True, static_argnums=1, donate_argnums=0)
+def fold_finishing(carry: RunCarry, sharding: LaneSharding | None) -> RunCarry:
+    """The carry after the last call of `finish`, with the finishing's sums and histogram added
+    to the totals (laid out over `sharding`'s devices as the run's carry is)."""
+    carry = _folded(carry)
+    return carry if sharding is None else jax.lax.with_sharding_constraint(carry, carry_shardings(carry, sharding))

@@ -51,7 +51,8 @@ def sample(
             lower variance) or `"time"` (the sampled holding times).
         positions: optional `(num_lanes, d)` starting points.
         save: the draws to keep (`restore.SaveDraws`: a budget of 100,000 by default).
-        progress: show a progress bar (updated between chunks: it costs nothing inside them).
+        progress: show a progress bar (updated between chunks: it costs nothing inside them),
+            and one for the finishing of the open tours in a narrow batch.
         num_chunks: chunks the run is cut into, for the progress bar and checkpoints.
         finish_tours: after the budget, run each open tour to its end, so that the estimates are
             not biased to short tours (`False` drops them): at most `num_steps` more steps, or ten

@@ -147,3 +147,38 @@ def test_the_narrow_batch_finishes_the_tours_that_outlast_the_budget(monkeypatch
     assert narrow.unfinished_tours == 0 and 20 < narrow.finishing_steps <= 200
     estimate = narrow.normalising_constant()
     assert estimate.reliable and abs(float(estimate.z_score(log_z))) < 3
+
+
+def test_narrow_finishing_in_calls_of_any_length_gives_the_same_bits_and_ctrl_c_keeps_the_budget(monkeypatch):
+    """The narrow batch finishes in calls of `FINISHING_CALL` steps (a progress bar and Ctrl-C
+    between them); a lane's sums join the totals once, after the last call, so calls of 3 steps
+    give the same bits as calls of 128. Ctrl-C during the finishing returns the budget's result
+    (the open tours dropped, as `finish_tours=False` does), marked interrupted."""
+    sampler = restore.JumpRestore(std_normal, RandomWalk(0.75), Gaussian(jnp.zeros(2), 2.25 * jnp.eye(2)), tour_length=10.0)
+    kwargs = dict(num_lanes=256, num_steps=20, progress=False, save=restore.SaveDraws(0))
+    monkeypatch.setattr("restore._run_loop.NARROW_FINISH_LANES", 1)
+    whole = restore.sample(sampler, jax.random.key(0), **kwargs)
+    monkeypatch.setattr("restore._run.FINISHING_CALL", 3)
+    calls = []
+    finish = restore._run.finish
+    monkeypatch.setattr("restore._run.finish", lambda *args: calls.append(1) or finish(*args))
+    pieces = restore.sample(sampler, jax.random.key(0), **kwargs)
+    assert len(calls) > 10 and pieces.finishing_steps == whole.finishing_steps > 20
+    for field in whole.sums._fields:
+        np.testing.assert_array_equal(getattr(pieces.sums, field), getattr(whole.sums, field), err_msg=field)
+    assert pieces.sums.num_tours.sum() > restore.sample(sampler, jax.random.key(0), finish_tours=False, **kwargs).sums.num_tours.sum()
+
+    def interrupted(*args):
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        calls.append(1)
+        return finish(*args)
+
+    calls.clear()
+    monkeypatch.setattr("restore._run.finish", interrupted)
+    with pytest.warns(UserWarning, match="interrupted while finishing"):
+        stopped = restore.sample(sampler, jax.random.key(0), **kwargs)
+    dropped = restore.sample(sampler, jax.random.key(0), finish_tours=False, **kwargs)
+    assert stopped.interrupted and stopped.finishing_steps == 0
+    for field in dropped.sums._fields:
+        np.testing.assert_array_equal(getattr(stopped.sums, field), getattr(dropped.sums, field), err_msg=field)
