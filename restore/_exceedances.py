@@ -211,8 +211,10 @@ class Largest(NamedTuple):
 
     def column(self, c: int, scoring: Scoring) -> np.ndarray:
         """Column `c` of the rows whose score there is above its threshold: all of the run's, exactly."""
-        keep = log_scores(self.rows, scoring, np)[:, c] > self.threshold[c]
-        return self.rows[keep, c]
+        values = self.rows[:, c]
+        with np.errstate(divide="ignore"):  # the logarithms of this column alone (as `log_scores` scores it)
+            scores = values if c >= self.rows.shape[-1] - scoring else np.log(np.abs(values))
+        return values[scores > self.threshold[c]]
 
 
 def largest(buffer: Exceedances, scoring: Scoring) -> Largest:
