@@ -490,12 +490,11 @@ def finish(chunk: Chunk, carry: RunCarry) -> tuple[RunCarry, ChunkReport, Finish
     lane has taken (`chunk.taken`), so the report's `steps` are those the call added to
     that most; its other sums cover the calls since the budget. After the last call (none
     `waiting`), `fold_finishing` adds the sums and histogram to the totals: once, so that a
-    lane's sums are the same, bit for bit, however its finishing steps fell into calls. With a `sharding`, each device finishes its own lanes (`width` slots each),
-    without talking to the others. The carry is donated.
+    lane's sums are the same, bit for bit, however its finishing steps fell into calls.
+    With a `sharding`, each device finishes its own lanes (`width` slots each), without
+    talking to the others. The carry is donated.
     """
-    sampler, observe, lane_keys, iterations, rao_blackwell, sharding, width, taken, limit = (
-        chunk.sampler, chunk.observe, chunk.lane_keys, chunk.length, chunk.rao_blackwell, chunk.sharding, chunk.width, chunk.taken, chunk.limit,
-    )  # fmt: skip
+    sampler, observe, lane_keys, iterations, _, _, rao_blackwell, sharding, width, taken, limit = chunk
     if taken is None or limit is None:
         raise ValueError("finish needs the finishing steps each lane took so far (`taken`) and their `limit`")
     lane_keys = unrolled_keys(lane_keys)
