@@ -498,9 +498,11 @@ def autosample(
         stage_key = stage_keys[stage - 1] if stage <= len(stage_keys) else jax.random.fold_in(stage_keys[-1], stage)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
+            # a tour that outlasts as many steps again as the stage had is a finding of the stage
+            # (the regeneration misses mass), not worth ten times the stage's steps to finish
             result = sample(
                 sampler, stage_key, num_lanes=num_lanes, num_steps=stage_steps,
-                observables=observables, progress=progress, save=stage_save,
+                observables=observables, progress=progress, save=stage_save, finish_tours=stage_steps,
             )  # fmt: skip
         pilot = sampler.pilot_size if piloted else 0
         report = _stage_report(stage, "adapt", choice.fit, result, pilot, time.perf_counter() - clock)

@@ -4,7 +4,8 @@ A run is a sequence of chunks, each one compiled `jax.lax.while_loop` that steps
 lane (`_run_loop.advance`); the host drives the chunks (`_driver.drive`: their lengths,
 checkpoints and progress). After the step budget, the tours still open are run to their
 end by another `while_loop`: over a narrower batch of the open lanes
-(`_run_loop.finish`), or over every lane where there are too few lanes for that.
+(`_run_loop.finish`), after a first pass over every lane where there are too few lanes to
+start with the narrow batch.
 """
 
 from __future__ import annotations
@@ -216,7 +217,7 @@ class Run:
         save: SaveDraws,
         progress: bool,
         num_chunks: int,
-        finish_tours: bool,
+        finish_tours: bool | int,
         devices: Devices,
         checkpoint: Checkpoint | str | os.PathLike | None,
         first_lane: int,
@@ -229,6 +230,7 @@ class Run:
         if not isinstance(save, SaveDraws):
             raise TypeError(f"save must be a restore.SaveDraws, got {type(save).__name__}")
         checkpoint = as_checkpoint(checkpoint)
+        finish_limit = _finish_limit(finish_tours, num_steps)
         sharding = lane_sharding(devices, num_lanes)
         sampler = check_sampler(sampler)
         if weights == "time" and sampler.is_diffusion:
@@ -275,7 +277,8 @@ class Run:
         self.sampler, self.observe, self.sharding, self.plan = sampler, observe, sharding, plan
         self.thin = jnp.asarray(plan.thin, jnp.int32)  # on the device once, not per chunk
         self.num_lanes, self.num_steps, self.num_chunks, self.weights = num_lanes, num_steps, num_chunks, weights
-        self.lane_keys, self.rao_blackwell, self.progress, self.finish_tours = lane_keys, rao_blackwell, progress, finish_tours
+        self.lane_keys, self.rao_blackwell, self.progress = lane_keys, rao_blackwell, progress
+        self.finish_tours, self.finish_limit = finish_limit > 0, finish_limit
         self.checkpoint = checkpoint
         self.done, self.finishing_steps, self.unfinished, self.finished, self.spent = 0, 0, 0, False, 0.0
         self.interrupted = False
@@ -299,7 +302,7 @@ class Run:
                 "stored": plan.stored,
                 **({} if save.rows is None else {"draw_rows": plan.rows}),
                 "positions": None if positions is None else array_digest(positions),
-                "finish_tours": bool(finish_tours),
+                "finish_tours": finish_tours if isinstance(finish_tours, bool) else finish_limit,
                 "num_devices": 1 if sharding is None else sharding.num_devices,
             }
             self.saver = _Saver(checkpoint.path, fingerprint, layout)
@@ -313,7 +316,7 @@ class Run:
         self.head: RunCarry = carry  # the last chunk dispatched (the next chunk starts from it)
         self.committed_steps = self.done
         self.trace_rows: list[tuple] = []  # per-chunk totals, from the chunks' reports
-        self.width = finishing_width(num_lanes // (1 if sharding is None else sharding.num_devices))
+        self.width, self.wide_first = finishing_width(num_lanes // (1 if sharding is None else sharding.num_devices))
         self.session_start = time.perf_counter()
 
     def _chunk(self, length, finishing: bool, width: int = 0, taken: Array | None = None, limit: Array | None = None) -> Chunk:
@@ -348,7 +351,7 @@ class Run:
         """Run the step budget in chunks (progress bar, checkpoints, Ctrl-C: `_driver.drive`)."""
         finisher = None
         if (
-            self.width is not None and self.sampler.has_tours and self.finish_tours and self.sharding is None
+            not self.wide_first and self.sampler.has_tours and self.finish_tours and self.sharding is None
             and os.environ.get("RESTORE_COMPILE_AHEAD", "1") != "0"
         ):  # fmt: skip
             # the narrow finishing program compiles in the background while the budget runs
@@ -402,23 +405,28 @@ class Run:
             )
 
     def _finish_tours(self) -> tuple[RunCarry, int, int]:
-        """The carry with each open tour run to its end (or to its lane's `finishing_limit`), the
-        steps that took and the tours still open.
+        """The carry with each open tour run to its end (or to the `finish_limit` of its lane's
+        finishing steps), the steps that took and the tours still open.
 
-        At full width in one call; in the narrow batch in calls of at most `FINISHING_CALL`
-        steps of the batch, with a progress bar between them (a lane may take up to ten times
-        the budget's steps there, `_run_loop.NARROW_FINISHING_STEPS`), and Ctrl-C taken
-        within one call.
+        Runs of few lanes first step every lane, for up to the budget's steps, in one call of
+        the chunk's program; the tours still open then (all of them, in runs of many lanes) go
+        to the narrow batch, in calls of at most `FINISHING_CALL` steps of the batch with a
+        progress bar between them and Ctrl-C taken within one call.
         """
-        limit = jnp.asarray(finishing_limit(self.num_steps, self.width), jnp.int32)
-        if self.width is None:  # every lane until the last open tour ends
-            carry, report = advance(self._chunk(limit, True), self.committed)
-            return carry, int(report.steps), int(report.open_tours)
+        carry, steps, taken = self.committed, 0, None
+        if self.wide_first:  # every lane until the last open tour ends, or the budget's steps
+            wide = min(self.finish_limit, self.num_steps)
+            carry, report = advance(self._chunk(wide, True), carry)
+            steps, still_open = int(report.steps), int(report.open_tours)
+            if still_open == 0 or steps >= self.finish_limit:
+                return carry, steps, still_open
+            taken = jnp.full((self.num_lanes,), steps, jnp.int32)  # every lane still open took them all
         wait(self.finisher)
-        carry, steps = self.committed, 0
-        taken = jnp.zeros((self.num_lanes,), jnp.int32)
+        if taken is None:
+            taken = jnp.zeros((self.num_lanes,), jnp.int32)
         if self.sharding is not None:
             taken = put(taken, self.sharding.lanes)
+        limit = jnp.asarray(self.finish_limit, jnp.int32)
         opened = int(jnp.sum(active(carry.sums), dtype=jnp.int32))
         meter = Meter(self.progress and opened > 0, "finishing the open tours (none start)", opened, "tours")
         with meter.shown():
@@ -455,6 +463,13 @@ class Run:
             unfinished_tours=self.unfinished,
             trace=run_trace(self.trace_rows),
         )
+
+
+def _finish_limit(finish_tours: bool | int, num_steps: int) -> int:
+    """The most finishing steps a lane may take (`finishing_limit`), 0 for none."""
+    if isinstance(finish_tours, bool | np.bool_):
+        return finishing_limit(num_steps) if finish_tours else 0
+    return finishing_limit(num_steps, check_integer(finish_tours, "finish_tours (True, False or a number of steps)"))
 
 
 def _checked_positions(positions, num_lanes: int, dim: int) -> Array | None:

@@ -17,10 +17,11 @@ mostly step lanes that are done. `finish` steps a narrower batch of `width` slot
 each holding one open lane: a lane whose tour ends is written back and its slot takes
 the next open lane. Lane `i`'s `j`-th finishing step draws with the key of global step
 `N + j` (`N` the budget), as a step of every lane would, so its path is the same whatever
-the width. A lane may take up to `N` finishing steps at full width and ten times as many
-in the narrow batch (`finishing_limit`); a tour still open then is left out, and the run
-says so. The narrow batch runs in calls of `FINISHING_CALL` of its steps (a progress bar
-and Ctrl-C between them); the lanes still in a slot at the end of a call are written back
+the width. A lane may take up to ten times `N` finishing steps (`finishing_limit`); a tour
+still open then is left out, and the run says so. Runs of fewer lanes (`finishing_width`)
+first step every lane, for up to `N` steps (no second program to compile when, as usual,
+every tour ends by then), and hand the lanes still open to the narrow batch. The narrow
+batch runs in calls of `FINISHING_CALL` of its steps (a progress bar and Ctrl-C between them); the lanes still in a slot at the end of a call are written back
 and taken again by the next, and the finishing's sums join the totals once, after the
 last call (`fold_finishing`), so they do not depend on where the calls end.
 """
@@ -362,18 +363,18 @@ def advance(chunk: Chunk, carry: RunCarry) -> tuple[RunCarry, ChunkReport]:
 
 
 #: Runs of at least this many lanes (per device) finish their open tours `NARROW_FACTOR` times
-#: narrower (`finish`); smaller runs finish them at full width (`advance`), which costs no
-#: second compilation of the step. Narrower batches finish sooner down to about 1/32 of the
-#: lanes (`docs/benchmarks.md`).
+#: narrower (`finish`); smaller runs first step all their lanes (`advance`), which needs no
+#: second compiled program, and hand the narrow batch only the tours still open after the
+#: budget's steps. Narrower batches finish sooner down to about 1/32 of the lanes
+#: (`docs/benchmarks.md`).
 NARROW_FINISH_LANES = 4096
 NARROW_FACTOR = 32
 
 
-#: In the narrow batch a lane may take up to this many times the budget's steps to end its
-#: open tour; at full width, up to the budget's steps. A long tour holds one slot of the
-#: narrow batch, where at full width it costs a step of every lane, so the narrow batch can
-#: afford to finish the rare long tours that a cap of the budget's steps would leave open
-#: (and the run's estimates unreliable): `docs/benchmarks.md`.
+#: A lane may take up to this many times the budget's steps to end its open tour. A long tour
+#: holds one slot of the narrow batch, where at full width it costs a step of every lane, so
+#: the narrow batch can afford to finish the rare long tours that a cap of the budget's steps
+#: would leave open (and the run's estimates unreliable): `docs/benchmarks.md`.
 NARROW_FINISHING_STEPS = 10
 
 #: The narrow batch's steps per call of `finish`: between calls the host shows the progress
@@ -381,16 +382,17 @@ NARROW_FINISHING_STEPS = 10
 FINISHING_CALL = 128
 
 
-def finishing_width(num_lanes: int) -> int | None:
-    """Slots of the narrow finishing batch, or `None` to finish at full width."""
-    return max(1, num_lanes // NARROW_FACTOR) if num_lanes >= NARROW_FINISH_LANES else None
+def finishing_width(num_lanes: int) -> tuple[int, bool]:
+    """Slots of the narrow finishing batch for `num_lanes` lanes (a device's), and whether the
+    open tours are first run at full width (fewer than `NARROW_FINISH_LANES` lanes)."""
+    return max(1, num_lanes // NARROW_FACTOR), num_lanes < NARROW_FINISH_LANES
 
 
-def finishing_limit(num_steps: int, width: int | None) -> int:
-    """The most finishing steps a lane may take after a budget of `num_steps` (`width`: the
-    narrow batch's, or `None` at full width), within the run's int32 step counter."""
-    limit = num_steps * (1 if width is None else NARROW_FINISHING_STEPS)
-    return max(num_steps, min(limit, np.iinfo(np.int32).max - num_steps))
+def finishing_limit(num_steps: int, limit: int | None = None) -> int:
+    """The most finishing steps a lane may take after a budget of `num_steps`: `limit`, or
+    `NARROW_FINISHING_STEPS` times the budget's, within the run's int32 step counter."""
+    wanted = num_steps * NARROW_FINISHING_STEPS if limit is None else limit
+    return max(1, min(wanted, np.iinfo(np.int32).max - num_steps))
 
 
 def _finish_lanes(

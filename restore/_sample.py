@@ -26,7 +26,7 @@ def sample(
     save: SaveDraws = DEFAULT_DRAWS,
     progress: bool = True,
     num_chunks: int = 50,
-    finish_tours: bool = True,
+    finish_tours: bool | int = True,
     devices: Devices = None,
     checkpoint: Checkpoint | str | os.PathLike | None = None,
     first_lane: int = 0,
@@ -55,8 +55,9 @@ def sample(
             and one for the finishing of the open tours in a narrow batch.
         num_chunks: chunks the run is cut into, for the progress bar and checkpoints.
         finish_tours: after the budget, run each open tour to its end, so that the estimates are
-            not biased to short tours (`False` drops them): at most `num_steps` more steps, or ten
-            times as many from 4,096 lanes a device, which finish in a narrow batch.
+            not biased to short tours (`False` drops them): a lane may take up to ten times
+            `num_steps` more steps (an integer: up to that many), in a batch narrower than the
+            lanes (below 4,096 lanes a device, after a first `num_steps` steps of every lane).
         devices: split the lanes over devices (`None`: the default one; an int `n`: the first
             `n`; `"all"`; devices or a `jax.sharding.Mesh`), with the same per-lane paths as
             on one device; across hosts after `jax.distributed.initialize()` (`docs/scaling.md`).

@@ -127,26 +127,35 @@ def test_calibrated_to_sets_the_rate_from_a_known_log_z_and_keeps_the_tour_lengt
         restore.JumpRestore(std_normal, RandomWalk(1.0), Gaussian(jnp.zeros(2), 2.0), log_rate=0.0).calibrated_to(1.0)
 
 
-def test_the_narrow_batch_finishes_the_tours_that_outlast_the_budget(monkeypatch):
-    """At full width a lane may take as many finishing steps as the budget had; in the narrow batch
-    (`restore._run_loop.NARROW_FINISHING_STEPS` times as many), where a long tour holds one slot. In a
-    20-step run a fifth of the open tours outlast 20 more steps: at full width they are left open and
-    `log Z` is off by 6 standard errors, flagged unreliable (the negative control); the narrow batch
-    ends every tour and `log Z` is right."""
+def test_the_tours_that_outlast_the_budget_are_finished_in_a_narrow_batch(monkeypatch):
+    """A lane may take up to `restore._run_loop.NARROW_FINISHING_STEPS` times the budget's steps to end
+    its open tour. Below `NARROW_FINISH_LANES` lanes every lane steps first, for the budget's steps, and
+    the tours still open go to the narrow batch, where a long tour holds one slot. In a 20-step run a
+    fifth of the open tours outlast 20 more steps: capped there (`finish_tours=20`), they are left open
+    and `log Z` is off by 6 standard errors, flagged unreliable (the negative control); by default every
+    tour ends and `log Z` is right, with the same tours, and the same per-lane sums, as a run that
+    finishes in the narrow batch alone (lane `i`'s `j`-th finishing step has one key in both)."""
     sampler = restore.JumpRestore(std_normal, RandomWalk(0.75), Gaussian(jnp.zeros(2), 2.25 * jnp.eye(2)), tour_length=10.0)
     kwargs = dict(num_lanes=256, num_steps=20, progress=False, save=restore.SaveDraws(0))
     log_z = np.log(2 * np.pi)
     with pytest.warns(RuntimeWarning, match="still had an open tour after 20 extra steps"):
-        wide = restore.sample(sampler, jax.random.key(0), **kwargs)
-    assert wide.unfinished_tours > 20
+        capped = restore.sample(sampler, jax.random.key(0), finish_tours=20, **kwargs)
+    assert capped.unfinished_tours > 20 and capped.finishing_steps == 20
     with pytest.warns(restore.UnreliableEstimateWarning):
-        estimate = wide.normalising_constant()
+        estimate = capped.normalising_constant()
     assert not estimate.reliable and abs(float(estimate.z_score(log_z))) > 4
-    monkeypatch.setattr("restore._run_loop.NARROW_FINISH_LANES", 1)  # 256 lanes finish 8 at a time
-    narrow = restore.sample(sampler, jax.random.key(0), **kwargs)
-    assert narrow.unfinished_tours == 0 and 20 < narrow.finishing_steps <= 200
-    estimate = narrow.normalising_constant()
+    handed = restore.sample(sampler, jax.random.key(0), **kwargs)
+    assert handed.unfinished_tours == 0 and 20 < handed.finishing_steps <= 200
+    estimate = handed.normalising_constant()
     assert estimate.reliable and abs(float(estimate.z_score(log_z))) < 3
+    monkeypatch.setattr("restore._run_loop.NARROW_FINISH_LANES", 1)  # 256 lanes finish 8 at a time from the start
+    narrow = restore.sample(sampler, jax.random.key(0), **kwargs)
+    assert narrow.finishing_steps == handed.finishing_steps and narrow.unfinished_tours == 0
+    for field in ("num_tours", "max_tour", "open_steps", "sum_f", "sum_t", "sum_t2"):
+        np.testing.assert_array_equal(getattr(narrow.sums, field), getattr(handed.sums, field), err_msg=field)
+    np.testing.assert_allclose(narrow.sums.all_t, handed.sums.all_t, rtol=1e-12)  # summed in another order
+    with pytest.raises(ValueError, match="finish_tours"):
+        restore.sample(sampler, jax.random.key(0), finish_tours=0, **kwargs)
 
 
 def test_narrow_finishing_in_calls_of_any_length_gives_the_same_bits_and_ctrl_c_keeps_the_budget(monkeypatch):
