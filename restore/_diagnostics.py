@@ -130,7 +130,7 @@ def heavy_tail_reasons(stats: TourStatistics) -> str:
     reasons = []
     if stats.unfinished_tours > 0:
         u = stats.unfinished_tours
-        reasons.append(f"{u} tour{'s' if u > 1 else ''} still ran after the finishing steps and {'were' if u > 1 else 'was'} left out")
+        reasons.append(f"{u} tour{'s' if u > 1 else ''} still open at the end of the run {'were' if u > 1 else 'was'} left out")
     # With underflowed durations (T or T^2 summing to zero: no effective tours) the tail
     # statistics mean nothing: estimates refuse such runs with a clear error instead.
     if stats.num_tours >= 20 and stats.effective_num_tours > 0:

@@ -66,6 +66,8 @@ class Estimate(NamedTuple):
 
 #: What `unreliable_reason` advises when there are too few terms (callers add no other advice then).
 FEW_TERMS_REMEDY = "run longer or with more lanes"
+#: What to do about the tours a run dropped at its end (`SampleResult.tours_dropped`; callers add no other advice then).
+DROPPED_TOURS_REMEDY = "finish them (finish_tours=True, the default) for error bars that hold"
 #: What to do about mass the final regeneration of `autosample` leaves unseen (`restore._autosample.coverage_caveat`).
 COVERAGE_REMEDY = "give autosample more lanes or steps (better stages choose a better regeneration), or build one that covers every mode"
 

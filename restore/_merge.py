@@ -69,5 +69,6 @@ def merge_results(results: Sequence[SampleResult]) -> SampleResult:
         unfinished_tours=sum(r.unfinished_tours for r in results),
         wall_time=max(r.wall_time for r in results),
         interrupted=any(r.interrupted for r in results),
+        tours_dropped=any(r.tours_dropped for r in results),
         trace=merge_traces([r.trace for r in results]),
     )

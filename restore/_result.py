@@ -16,6 +16,7 @@ from ._arviz import to_arviz as arviz_export
 from ._diagnostics import TourStatistics, heavy_tail_reasons, tour_statistics
 from ._estimates import (
     COVERAGE_REMEDY,
+    DROPPED_TOURS_REMEDY,
     FEW_TERMS_REMEDY,
     Estimate,
     UnreliableEstimateWarning,
@@ -78,7 +79,8 @@ class SampleResult:
         num_lanes: lanes run.
         num_steps: steps per lane within the budget; `finishing_steps` after it.
         finishing_steps: steps spent finishing the tours open at the end of the budget.
-        unfinished_tours: lanes whose tour was still open after finishing.
+        unfinished_tours: lanes whose tour was still open after finishing (or, with
+            `tours_dropped`, when the budget ended).
         thin: every `thin`-th step was stored.
         weights: `"rao_blackwell"` or `"time"`.
         wall_time: seconds the run took.
@@ -95,6 +97,9 @@ class SampleResult:
         caveat: a reason found outside the run why its tour-based error bars cannot be
             trusted (`restore.autosample`'s check of the regeneration against an earlier
             stage's draws), or `""`.
+        tours_dropped: the tours open when the budget ended were not run to their end
+            (`finish_tours=False`, or Ctrl-C before they were): the tour-based estimates
+            lean towards short tours and are marked unreliable.
     """
 
     sampler_name: str
@@ -123,6 +128,7 @@ class SampleResult:
     trace: RunTrace | None = None
     advice: str = SAMPLE_ADVICE
     caveat: str = ""
+    tours_dropped: bool = False
     _thinning_noted: bool = dataclasses.field(default=False, init=False, repr=False)
     _run_shapes: dict[str, np.ndarray] = dataclasses.field(default_factory=dict, init=False, repr=False)  # `_run_shape`
 
@@ -148,6 +154,7 @@ class SampleResult:
         draws_note=None,
         unfinished_tours=0,
         trace=None,
+        tours_dropped=False,
     ) -> SampleResult:
         to_np = lambda tree: jax.tree.map(np.asarray, tree)
         facts = sampler.run_facts()
@@ -177,6 +184,7 @@ class SampleResult:
             expected_tour_times=sampler.expected_tour_times(final_state.tour, sums.num_tours) if sampler.has_tours else None,
             trace=trace,
             advice=advice(),
+            tours_dropped=bool(tours_dropped),
         )
         result._warn()
         return result
@@ -336,6 +344,13 @@ class SampleResult:
         count = int(np.sum(open_lanes if lanes is None else open_lanes[lanes]))
         if not count:
             return ""
+        if self.tours_dropped:
+            why = "the run was interrupted" if self.interrupted else "finish_tours=False"
+            return (
+                f"{count} tour{'s were' if count > 1 else ' was'} still open when the budget ended and "
+                f"{'were' if count > 1 else 'was'} dropped ({why}), so the tour-based estimates lean towards short "
+                f"tours (the long ones are the likely ones to straddle the end); {DROPPED_TOURS_REMEDY}"
+            )
         return (
             f"{count} tour{'s were' if count > 1 else ' was'} still running "
             f"{self.finishing_steps} steps after the budget ended and left out, so tours can outlast the run and the "
@@ -487,9 +502,9 @@ class SampleResult:
         if self.has_tours and self.log_rate is not None:
             stats = self.tour_statistics()
             if stats.heavy_tailed:
+                remedy = f"finish the open tours (finish_tours=True, the default); if this stays, {self.advice}" if self.tours_dropped else self.advice
                 warn(
-                    f"tour-based estimates and their standard errors cannot be trusted: {heavy_tail_reasons(stats)}; "
-                    f"{self.advice}",
+                    f"tour-based estimates and their standard errors cannot be trusted: {heavy_tail_reasons(stats)}; {remedy}",
                     UnreliableEstimateWarning,
                 )
 
@@ -498,7 +513,8 @@ class SampleResult:
         each observable's mean, standard error, ESS, `k_hat` and whether its error bar can be trusted."""
         lines = [
             f"{self.sampler_name}: {self.num_lanes} lanes x {self.num_steps} steps in {self.wall_time:.2f} s"
-            + (" (interrupted)" if self.interrupted else ""),
+            + (" (interrupted)" if self.interrupted else "")
+            + (f", {self.unfinished_tours} open tours dropped" if self.tours_dropped and self.unfinished_tours else ""),
             f"  acceptance rate {self.acceptance_rate:.3f}, invalid evaluations {self.num_invalid}",
             f"  stored draws: {self.draws.shape[0]} per lane, one every {self.thin} steps"
             + (" (thinned to the draws budget: raise SaveDraws(max_draws=...) or set SaveDraws(thin=...) to keep more)" if self.draws_note else ""),
@@ -531,5 +547,5 @@ def _warn_unreliable(what: str, estimate: Estimate, advice: str) -> None:
     if np.all(estimate.reliable):
         return
     reason = unreliable_reason(estimate)
-    remedy = "" if reason.endswith((FEW_TERMS_REMEDY, COVERAGE_REMEDY)) else f"; {advice}"  # the reason may say what to do itself
+    remedy = "" if reason.endswith((FEW_TERMS_REMEDY, COVERAGE_REMEDY, DROPPED_TOURS_REMEDY)) else f"; {advice}"  # the reason may say what to do itself
     warn(f"{what}: the standard error cannot be trusted: {reason}{remedy}", UnreliableEstimateWarning)

@@ -442,6 +442,9 @@ class Run:
         wall_time = self._elapsed()
         host = to_host(self.committed)
         sums, histogram = host_totals(host.totals)
+        # without the finishing, the tours open at the budget's end are left out (and counted as such)
+        dropped = self.sampler.has_tours and (self.interrupted or not self.finish_tours)
+        unfinished = int(np.sum((sums.open_steps > 0) & ~sums.skip_first)) if dropped else self.unfinished
         stored_rows = min(self.plan.stored, math.ceil(self.done / self.plan.thin))
         return SampleResult.from_run(
             sampler=self.sampler,
@@ -460,8 +463,9 @@ class Run:
             wall_time=wall_time,
             interrupted=self.interrupted,
             draws_note=self.draws_note,
-            unfinished_tours=self.unfinished,
+            unfinished_tours=unfinished,
             trace=run_trace(self.trace_rows),
+            tours_dropped=dropped,
         )
 
 

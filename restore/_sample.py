@@ -55,7 +55,8 @@ def sample(
             and one for the finishing of the open tours in a narrow batch.
         num_chunks: chunks the run is cut into, for the progress bar and checkpoints.
         finish_tours: after the budget, run each open tour to its end, so that the estimates are
-            not biased to short tours (`False` drops them): a lane may take up to ten times
+            not biased to short tours (`False` drops them, and marks the tour-based
+            estimates unreliable: `result.tours_dropped`): a lane may take up to ten times
             `num_steps` more steps (an integer: up to that many), in a batch narrower than the
             lanes (below 4,096 lanes a device, after a first `num_steps` steps of every lane).
         devices: split the lanes over devices (`None`: the default one; an int `n`: the first

@@ -102,7 +102,7 @@ def test_the_heavy_tail_words_quote_only_the_checks_that_failed():
     """One tour outlasted the run, and the longest 1% hold 5%: the words say that, and do not call
     a k_hat of 0.14 heavy-tailed or the tours "dominated by a few"."""
     words = heavy_tail_reasons(_stats(unfinished_tours=1))
-    assert words == "1 tour still ran after the finishing steps and was left out"
+    assert words == "1 tour still open at the end of the run was left out"
     assert heavy_tail_reasons(_stats()) == ""
     words = heavy_tail_reasons(_stats(longest_share=0.4, k_hat=0.9))
     assert "hold 40% of the time" in words and "k_hat = 0.90" in words and "worth" not in words
