@@ -88,6 +88,12 @@ with warnings.catch_warnings():
 run_loop.NARROW_FINISH_LANES, run_loop.NARROW_FACTOR = narrow_defaults
 record(arrays, "narrow", result)
 report["narrow/finishing_steps"] = result.finishing_steps
+# A short run: the tours still open after the budget's 4 finishing steps of every lane go to the narrow batch.
+with warnings.catch_warnings():
+    warnings.simplefilter("ignore")
+    result = restore.sample(jump, jax.random.key(7), num_lanes=8, num_steps=4, progress=False, devices=runs["jump"][1])
+record(arrays, "handoff", result)
+report["handoff/finishing_steps"], report["handoff/unfinished"] = result.finishing_steps, result.unfinished_tours
 if mode == "sharded":  # interrupted after two chunks, then resumed from the checkpoint onto the devices
     kwargs = dict(num_lanes=8, num_steps=200, progress=False, devices=4, checkpoint=out + ".ckpt")
     with warnings.catch_warnings(), ctrl_c_after(2):
@@ -145,14 +151,16 @@ def test_sharded_lanes_match_one_device_bit_for_bit(runs):
         else:
             np.testing.assert_array_equal(sharded[name], single[name], err_msg=name)
     report = runs["sharded"][1]
-    for name in ("jump", "brownian", "narrow"):
+    for name in ("jump", "brownian", "narrow", "handoff"):
         assert report[f"{name}/finishing_steps"] == runs["single"][1][f"{name}/finishing_steps"]
-        assert single[f"{name}/histogram_counts"].sum() == single[f"{name}/sums/num_tours"].sum() > 20
+        assert single[f"{name}/histogram_counts"].sum() == single[f"{name}/sums/num_tours"].sum() > (8 if name == "handoff" else 20)
     # The lanes stay split 2 per device through the run, and nothing per lane comes to the host
-    # before the end: one gather of 4 shards for each of the three runs (the chunks of 20 steps
+    # before the end: one gather of 4 shards for each of the four runs (the chunks of 20 steps
     # report a few scalars).
-    assert report["shards"][:3] == [[2, 2, 2, 2]] * 3
-    assert runs["single"][1]["shards"] == [[8]] * 3
+    assert report["shards"][:4] == [[2, 2, 2, 2]] * 4
+    assert runs["single"][1]["shards"] == [[8]] * 4
+    # the short run handed its longest tours to the narrow batch, on each device its own, and ended them all
+    assert report["handoff/finishing_steps"] > 4 and report["handoff/unfinished"] == 0
 
 
 def test_narrow_finishing_follows_the_same_paths(runs):
