@@ -66,6 +66,11 @@ class Estimate(NamedTuple):
 
 #: What `unreliable_reason` advises when there are too few terms (callers add no other advice then).
 FEW_TERMS_REMEDY = "run longer or with more lanes"
+#: Lane-based estimates are marked unreliable when the halves of the stored draws disagree by more
+#: than this many standard errors in some component (`start_transient`).
+START_Z_LIMIT = 4.0
+#: What to do when the lanes have not forgotten their start (callers add no other advice then).
+START_REMEDY = "run longer, or start the lanes nearer the target (positions=)"
 #: What to do about the tours a run dropped at its end (`SampleResult.tours_dropped`; callers add no other advice then).
 DROPPED_TOURS_REMEDY = "finish them (finish_tours=True, the default) for error bars that hold"
 #: What to do about mass the final regeneration of `autosample` leaves unseen (`restore._autosample.coverage_caveat`).
@@ -162,6 +167,47 @@ def lane_ratio(all_f, all_t) -> Estimate:
     flat = np.abs(resid.reshape(lanes, -1))
     k_hat = np.array([pareto_k(flat[:, j], lanes) for j in range(flat.shape[1])]).reshape(value.shape)
     return Estimate(value, np.sqrt(np.sum(resid**2, axis=0) * lanes / (lanes - 1.0)) / T, k_hat, k_hat_limit(lanes))
+
+
+def halves_z(values, weights) -> np.ndarray | None:
+    """How far apart, in standard errors, the weighted means of the first and the second half of
+    each lane's stored draws are (`values`: `(rows, lanes, ...)`, `weights`: `(rows, lanes)`),
+    per component; `None` with fewer than 4 rows or 2 lanes.
+
+    The lanes are the replicates: each gives its sums over both halves, so the difference of the
+    two ratio estimates has a delta-method standard error over lanes, whatever the correlation
+    within a lane. A lane that has forgotten its start gives halves that agree within their
+    error; one that starts away from the target (a draw of the regeneration, no burn-in) has a
+    first half that leans towards the start.
+    """
+    v, w = np.asarray(values, np.float64), np.asarray(weights, np.float64)
+    half, lanes = v.shape[0] // 2, v.shape[1]
+    if half < 2 or lanes < 2:
+        return None
+    sums = lambda rows: (np.einsum("rl,rl...->l...", w[rows], v[rows]), w[rows].sum(axis=0))  # noqa: E731
+    (f1, t1), (f2, t2) = sums(slice(0, half)), sums(slice(half, 2 * half))
+    T1, T2 = t1.sum(), t2.sum()
+    if not (T1 > 0 and T2 > 0):
+        return None
+    m1, m2 = f1.sum(axis=0) / T1, f2.sum(axis=0) / T2
+    lane = (-1,) + (1,) * (f1.ndim - 1)
+    resid = (f1 - m1 * t1.reshape(lane)) / T1 - (f2 - m2 * t2.reshape(lane)) / T2
+    se = np.sqrt(np.sum(resid**2, axis=0) * lanes / (lanes - 1.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(se > 0, (m1 - m2) / np.where(se > 0, se, 1.0), 0.0)
+
+
+def start_transient(values, weights) -> str:
+    """Why a lane-based estimate leans towards the lanes' start (`halves_z` above
+    `START_Z_LIMIT`), or `""`: no sign of it, or too few stored draws to look."""
+    z = halves_z(values, weights)
+    if z is None or not np.any(np.abs(z) > START_Z_LIMIT):
+        return ""
+    return (
+        f"the first and second halves of the lanes' stored draws disagree by up to {float(np.max(np.abs(z))):.1f} "
+        "standard errors: the lanes have not forgotten their start (a draw of the regeneration, with no burn-in), "
+        f"so the estimate leans towards it; {START_REMEDY}"
+    )
 
 
 def log_mean_exp(log_sum: np.ndarray, log_sum2: np.ndarray, count: float) -> tuple[float, float]:

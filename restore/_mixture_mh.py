@@ -46,7 +46,9 @@ class MixtureMH(AbstractSampler):
     one move of the local kernel. Both kernels leave the target invariant, so their
     mixture does. This is the chain that jump Restore is compared with when both use the
     same local kernel and `nu` (the paper's section 6.1: MH tours end at accepted large
-    steps). Each step costs one new density evaluation, like a jump-Restore step.
+    steps). Each step costs one new density evaluation, like a jump-Restore step. Its lanes
+    start at draws of `nu` with no burn-in: its (lane-based) estimates are marked unreliable
+    while the stored draws show that the lanes have not forgotten their start.
 
     Arguments:
         logdensity: unnormalised log density of one point `(d,)`.

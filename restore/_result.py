@@ -18,11 +18,13 @@ from ._estimates import (
     COVERAGE_REMEDY,
     DROPPED_TOURS_REMEDY,
     FEW_TERMS_REMEDY,
+    START_REMEDY,
     Estimate,
     UnreliableEstimateWarning,
     check_total_time,
     lane_ratio,
     log_mean_exp,
+    start_transient,
     tour_ratio,
     unreliable_reason,
     with_tail_excess,
@@ -131,6 +133,7 @@ class SampleResult:
     tours_dropped: bool = False
     _thinning_noted: bool = dataclasses.field(default=False, init=False, repr=False)
     _run_shapes: dict[str, np.ndarray] = dataclasses.field(default_factory=dict, init=False, repr=False)  # `_run_shape`
+    _values: np.ndarray | None = dataclasses.field(default=None, init=False, repr=False)  # `_draw_values`
 
     @classmethod
     def from_run(
@@ -222,7 +225,9 @@ class SampleResult:
                 the position `"x"` is streamed with any observables).
             method: `"tours"` (regenerative ratio estimator over complete tours; the
                 default for Restore samplers) or `"lanes"` (lanes as independent
-                replicates, incomplete tours included; the default for MH).
+                replicates, incomplete tours included; the default for MH: marked
+                unreliable when the halves of the stored draws show that the lanes have not
+                forgotten their start, `_estimates.halves_z`).
             lanes: optional index (slice, integer array or mask) of the lanes to use,
                 e.g. to form independent replications from one run. Its `k_hat` is at least
                 the whole run's (`_run_shape`).
@@ -244,6 +249,10 @@ class SampleResult:
             est = est._replace(k_hat=k_hat, k_limit=k_hat_limit(n), caveat=self._caveat(lanes))
         else:
             est = lane_ratio(pick(s.all_f)[:, cut], pick(s.all_t))
+            at_draws, weights = self._draw_values()[:, :, cut], self.draw_weights
+            if lanes is not None:
+                at_draws, weights = at_draws[:, lanes], weights[:, lanes]
+            est = est._replace(caveat=start_transient(at_draws, weights))
         shape = lambda a: np.reshape(a, slot.shape)  # noqa: E731
         shaped = Estimate(shape(est.value), shape(est.standard_error), shape(est.k_hat), est.k_limit, est.caveat)
         _warn_unreliable(f"the estimate of {name!r}", shaped, self.advice)
@@ -331,6 +340,13 @@ class SampleResult:
                 self._run_shapes[key] = np.asarray(whole_run().k_hat, np.float64)
         return self._run_shapes[key]
 
+    def _draw_values(self) -> np.ndarray:
+        """The streamed observables at the stored draws, `(rows, lanes, size)` (computed once)."""
+        if self._values is None:
+            draws = jax.numpy.asarray(self.draws)
+            self._values = np.asarray(jax.vmap(jax.vmap(self.observables))(draws), np.float64) if draws.size else np.zeros(draws.shape[:2] + (self.observables.size,))
+        return self._values
+
     def _caveat(self, lanes=None) -> str:
         """Why the tour-based error bars cannot be trusted, whatever their tail fit says (`""`: no reason)."""
         return "; ".join(reason for reason in (self._open_tours_caveat(lanes), self.caveat) if reason)
@@ -417,7 +433,9 @@ class SampleResult:
         """Post-hoc estimate of `E_pi[fn(x)]` from the stored (thinned) draws and weights.
 
         `fn` maps an array of states `(..., d)` to values `(...)` or `(..., k)` (numpy or
-        JAX). The standard error treats lanes as independent replicates.
+        JAX). The standard error treats lanes as independent replicates; the estimate is
+        marked unreliable when the halves of the draws show that the lanes have not
+        forgotten their start (as lane-based estimates are).
         """
         if self.draws.shape[0] == 0:
             raise ValueError("no draws were stored: pass save=restore.SaveDraws(max_draws > 0) to restore.sample")
@@ -427,7 +445,7 @@ class SampleResult:
             raise ValueError(f"fn must keep the leading (draw, lane) axes {self.draws.shape[:2]}, got {values.shape}")
         w = self.draw_weights.astype(np.float64)
         wv = np.einsum("sl,sl...->l...", w, values)
-        return lane_ratio(wv, w.sum(axis=0))
+        return lane_ratio(wv, w.sum(axis=0))._replace(caveat=start_transient(values, w))
 
     def to_arviz(self, resample: bool = True, seed: int = 0, transform: Callable[[np.ndarray], Mapping[str, np.ndarray]] | None = None, chains: int | None = None):
         """The stored draws in ArviZ, lanes grouped into chains: an `xarray.DataTree` with ArviZ 1.x, `InferenceData` with 0.x.
@@ -547,5 +565,5 @@ def _warn_unreliable(what: str, estimate: Estimate, advice: str) -> None:
     if np.all(estimate.reliable):
         return
     reason = unreliable_reason(estimate)
-    remedy = "" if reason.endswith((FEW_TERMS_REMEDY, COVERAGE_REMEDY, DROPPED_TOURS_REMEDY)) else f"; {advice}"  # the reason may say what to do itself
+    remedy = "" if reason.endswith((FEW_TERMS_REMEDY, COVERAGE_REMEDY, DROPPED_TOURS_REMEDY, START_REMEDY)) else f"; {advice}"  # the reason may say what to do itself
     warn(f"{what}: the standard error cannot be trusted: {reason}{remedy}", UnreliableEstimateWarning)
