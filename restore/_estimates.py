@@ -181,11 +181,19 @@ def halves_z(values, weights) -> np.ndarray | None:
     first half that leans towards the start.
     """
     v, w = np.asarray(values, np.float64), np.asarray(weights, np.float64)
-    half, lanes = v.shape[0] // 2, v.shape[1]
-    if half < 2 or lanes < 2:
+    half = v.shape[0] // 2
+    if half < 2:
         return None
     sums = lambda rows: (np.einsum("rl,rl...->l...", w[rows], v[rows]), w[rows].sum(axis=0))  # noqa: E731
-    (f1, t1), (f2, t2) = sums(slice(0, half)), sums(slice(half, 2 * half))
+    return halves_z_from_sums(*sums(slice(0, half)), *sums(slice(half, 2 * half)))
+
+
+def halves_z_from_sums(f1, t1, f2, t2) -> np.ndarray | None:
+    """`halves_z` from each lane's weighted sums `(lanes, ...)` and weights `(lanes,)` over the
+    first and the second half of its draws; `None` with fewer than 2 lanes."""
+    lanes = f1.shape[0]
+    if lanes < 2:
+        return None
     T1, T2 = t1.sum(), t2.sum()
     if not (T1 > 0 and T2 > 0):
         return None
@@ -197,10 +205,9 @@ def halves_z(values, weights) -> np.ndarray | None:
         return np.where(se > 0, (m1 - m2) / np.where(se > 0, se, 1.0), 0.0)
 
 
-def start_transient(values, weights) -> str:
+def start_transient(z: np.ndarray | None) -> str:
     """Why a lane-based estimate leans towards the lanes' start (`halves_z` above
-    `START_Z_LIMIT`), or `""`: no sign of it, or too few stored draws to look."""
-    z = halves_z(values, weights)
+    `START_Z_LIMIT`), or `""`: no sign of it, or too few stored draws to look (`None`)."""
     if z is None or not np.any(np.abs(z) > START_Z_LIMIT):
         return ""
     return (

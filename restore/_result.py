@@ -22,6 +22,8 @@ from ._estimates import (
     Estimate,
     UnreliableEstimateWarning,
     check_total_time,
+    halves_z,
+    halves_z_from_sums,
     lane_ratio,
     log_mean_exp,
     start_transient,
@@ -57,6 +59,10 @@ def _kept(tails: TourTails | None) -> TourTails:
     if tails is None:
         raise ValueError("this result kept no tour tails")
     return tails
+
+
+#: Stored draws whose observables `_draw_halves` evaluates at a time (rows x lanes).
+HALVES_BLOCK = 1 << 18
 
 
 @dataclasses.dataclass(eq=False)
@@ -133,7 +139,7 @@ class SampleResult:
     tours_dropped: bool = False
     _thinning_noted: bool = dataclasses.field(default=False, init=False, repr=False)
     _run_shapes: dict[str, np.ndarray] = dataclasses.field(default_factory=dict, init=False, repr=False)  # `_run_shape`
-    _values: np.ndarray | None = dataclasses.field(default=None, init=False, repr=False)  # `_draw_values`
+    _halves: dict[str, tuple[np.ndarray, ...]] = dataclasses.field(default_factory=dict, init=False, repr=False)  # `_draw_halves`
 
     @classmethod
     def from_run(
@@ -249,10 +255,10 @@ class SampleResult:
             est = est._replace(k_hat=k_hat, k_limit=k_hat_limit(n), caveat=self._caveat(lanes))
         else:
             est = lane_ratio(pick(s.all_f)[:, cut], pick(s.all_t))
-            at_draws, weights = self._draw_values()[:, :, cut], self.draw_weights
-            if lanes is not None:
-                at_draws, weights = at_draws[:, lanes], weights[:, lanes]
-            est = est._replace(caveat=start_transient(at_draws, weights))
+            halves = self._draw_halves(name)
+            if halves is not None and lanes is not None:
+                halves = tuple(h[lanes] for h in halves)
+            est = est._replace(caveat=start_transient(None if halves is None else halves_z_from_sums(*halves)))
         shape = lambda a: np.reshape(a, slot.shape)  # noqa: E731
         shaped = Estimate(shape(est.value), shape(est.standard_error), shape(est.k_hat), est.k_limit, est.caveat)
         _warn_unreliable(f"the estimate of {name!r}", shaped, self.advice)
@@ -340,12 +346,29 @@ class SampleResult:
                 self._run_shapes[key] = np.asarray(whole_run().k_hat, np.float64)
         return self._run_shapes[key]
 
-    def _draw_values(self) -> np.ndarray:
-        """The streamed observables at the stored draws, `(rows, lanes, size)` (computed once)."""
-        if self._values is None:
-            draws = jax.numpy.asarray(self.draws)
-            self._values = np.asarray(jax.vmap(jax.vmap(self.observables))(draws), np.float64) if draws.size else np.zeros(draws.shape[:2] + (self.observables.size,))
-        return self._values
+    def _draw_halves(self, name: str) -> tuple[np.ndarray, ...] | None:
+        """Each lane's weighted sums of observable `name` and its weights over the first and the
+        second half of its stored draws (`halves_z_from_sums`), or `None` with fewer than 4 rows.
+        Computed once per observable, a block of rows at a time (memory of a block, not of every
+        draw's values)."""
+        half = self.draws.shape[0] // 2
+        if half < 2:
+            return None
+        if name not in self._halves:
+            fn = self.observables.functions[[slot.name for slot in self.observables.slots].index(name)]
+            values = jax.vmap(jax.vmap(lambda x: jax.numpy.ravel(fn(x))))
+            block = max(1, HALVES_BLOCK // max(1, self.num_lanes))
+            sums = []
+            for rows in (range(0, half), range(half, 2 * half)):
+                f, t = 0.0, 0.0
+                for start in range(rows.start, rows.stop, block):
+                    part = slice(start, min(start + block, rows.stop))
+                    w = self.draw_weights[part].astype(np.float64)
+                    f = f + np.einsum("rl,rl...->l...", w, np.asarray(values(self.draws[part]), np.float64))
+                    t = t + w.sum(axis=0)
+                sums += [np.asarray(f), np.asarray(t)]
+            self._halves[name] = tuple(sums)
+        return self._halves[name]
 
     def _caveat(self, lanes=None) -> str:
         """Why the tour-based error bars cannot be trusted, whatever their tail fit says (`""`: no reason)."""
@@ -445,7 +468,7 @@ class SampleResult:
             raise ValueError(f"fn must keep the leading (draw, lane) axes {self.draws.shape[:2]}, got {values.shape}")
         w = self.draw_weights.astype(np.float64)
         wv = np.einsum("sl,sl...->l...", w, values)
-        return lane_ratio(wv, w.sum(axis=0))._replace(caveat=start_transient(values, w))
+        return lane_ratio(wv, w.sum(axis=0))._replace(caveat=start_transient(halves_z(values, w)))
 
     def to_arviz(self, resample: bool = True, seed: int = 0, transform: Callable[[np.ndarray], Mapping[str, np.ndarray]] | None = None, chains: int | None = None):
         """The stored draws in ArviZ, lanes grouped into chains: an `xarray.DataTree` with ArviZ 1.x, `InferenceData` with 0.x.
