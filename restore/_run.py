@@ -278,7 +278,7 @@ class Run:
         self.thin = jnp.asarray(plan.thin, jnp.int32)  # on the device once, not per chunk
         self.num_lanes, self.num_steps, self.num_chunks, self.weights = num_lanes, num_steps, num_chunks, weights
         self.lane_keys, self.rao_blackwell, self.progress = lane_keys, rao_blackwell, progress
-        self.finish_tours, self.finish_limit = finish_limit > 0, finish_limit
+        self.finish_limit = finish_limit  # the most finishing steps a lane may take; 0: the open tours are dropped
         self.checkpoint = checkpoint
         self.done, self.finishing_steps, self.unfinished, self.finished, self.spent = 0, 0, 0, False, 0.0
         self.interrupted = False
@@ -351,7 +351,7 @@ class Run:
         """Run the step budget in chunks (progress bar, checkpoints, Ctrl-C: `_driver.drive`)."""
         finisher = None
         if (
-            not self.wide_first and self.sampler.has_tours and self.finish_tours and self.sharding is None
+            not self.wide_first and self.sampler.has_tours and self.finish_limit and self.sharding is None
             and os.environ.get("RESTORE_COMPILE_AHEAD", "1") != "0"
         ):  # fmt: skip
             # the narrow finishing program compiles in the background while the budget runs
@@ -384,7 +384,7 @@ class Run:
 
     def finish(self) -> None:
         """Run the open tours to their end (if `finish_tours`) and save the finished run to its checkpoint."""
-        if self.sampler.has_tours and not self.interrupted and self.finish_tours and not self.finished:
+        if self.sampler.has_tours and not self.interrupted and self.finish_limit and not self.finished:
             budget_run = _copied(self.committed)  # the finishing takes the run's buffers; Ctrl-C during it returns this
             try:
                 self.committed, self.finishing_steps, self.unfinished = self._finish_tours()
@@ -413,17 +413,15 @@ class Run:
         to the narrow batch, in calls of at most `FINISHING_CALL` steps of the batch with a
         progress bar between them and Ctrl-C taken within one call.
         """
-        carry, steps, taken = self.committed, 0, None
+        carry, steps = self.committed, 0
         if self.wide_first:  # every lane until the last open tour ends, or the budget's steps
             wide = min(self.finish_limit, self.num_steps)
             carry, report = advance(self._chunk(wide, True), carry)
             steps, still_open = int(report.steps), int(report.open_tours)
             if still_open == 0 or steps >= self.finish_limit:
                 return carry, steps, still_open
-            taken = jnp.full((self.num_lanes,), steps, jnp.int32)  # every lane still open took them all
         wait(self.finisher)
-        if taken is None:
-            taken = jnp.zeros((self.num_lanes,), jnp.int32)
+        taken = jnp.full((self.num_lanes,), steps, jnp.int32)  # every lane still open has taken them all
         if self.sharding is not None:
             taken = put(taken, self.sharding.lanes)
         limit = jnp.asarray(self.finish_limit, jnp.int32)
@@ -443,8 +441,8 @@ class Run:
         host = to_host(self.committed)
         sums, histogram = host_totals(host.totals)
         # without the finishing, the tours open at the budget's end are left out (and counted as such)
-        dropped = self.sampler.has_tours and (self.interrupted or not self.finish_tours)
-        unfinished = int(np.sum((sums.open_steps > 0) & ~sums.skip_first)) if dropped else self.unfinished
+        dropped = self.sampler.has_tours and (self.interrupted or not self.finish_limit)
+        unfinished = int(np.sum(active(sums))) if dropped else self.unfinished
         stored_rows = min(self.plan.stored, math.ceil(self.done / self.plan.thin))
         return SampleResult.from_run(
             sampler=self.sampler,
