@@ -348,11 +348,6 @@ class AbstractRestore(AbstractSampler):
         rates = rates[0] if self.num_phases == 1 else rates
         return eqx.tree_at(lambda s: s.log_rate, self, rates, is_leaf=lambda x: x is None)
 
-    def calibration_stand_in(self) -> AbstractRestore:
-        """`calibrated_to(0.0)` if the sampler has no `log_rate` yet (the structure `calibrate`
-        gives, with a stand-in estimate), else the sampler itself."""
-        return self if self.log_rate is not None or self.tour_length is None else self.calibrated_to(0.0)
-
     def run_facts(self) -> RunFacts:
         return RunFacts(self.effective_log_rate, self.tour_length)
 

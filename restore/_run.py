@@ -28,6 +28,7 @@ from ._accumulators import (
     host_totals,
 )
 from ._ahead import Ahead, compile_ahead, wait, wait_lowered
+from ._calibration import calibrate, calibrated_like
 from ._checkpoint import (
     CheckpointError,
     array_digest,
@@ -246,11 +247,11 @@ class Run:
         rao_blackwell = weights == "rao_blackwell"
         ahead = (None, None)
         if sharding is None and os.environ.get("RESTORE_COMPILE_AHEAD", "1") != "0":
-            like = sampler.calibration_stand_in()
+            like = calibrated_like(sampler)
             ahead = _compile_run_ahead(like, init_keys, positions, lane_keys, observables, plan.rows, rao_blackwell)
 
         wait_lowered(ahead[1])  # the pilot's tracing would share Python's lock with the loop's (see `_ahead`)
-        sampler, self.pilot = sampler.calibrate(key_pilot)
+        sampler, self.pilot = calibrate(sampler, key_pilot)
         if sharding is not None:
             sampler = _replicate(sampler, sharding)
             init_keys = put(init_keys, sharding.lanes)

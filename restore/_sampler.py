@@ -126,17 +126,6 @@ class AbstractSampler(eqx.Module):
         """Tours start independently of the past: tour-based standard errors are valid."""
         return False
 
-    def calibrate(self, key: PRNGKeyArray) -> tuple[AbstractSampler, Any]:
-        """The sampler ready to run and the pilot run that calibrated it (`(self, None)` for a
-        sampler that needs no calibration)."""
-        return self, None
-
-    def calibration_stand_in(self) -> AbstractSampler:
-        """A sampler built as `calibrate` builds its result, with stand-in constants:
-        `restore.sample` compiles a run's programs from it while the pilot runs (`self`
-        for a sampler that needs no calibration)."""
-        return self
-
     def run_facts(self) -> RunFacts:
         """The constants a result needs (none for a sampler without tours)."""
         return RunFacts()

@@ -60,7 +60,7 @@ def test_a_stand_in_of_another_structure_only_costs_a_second_compilation(compila
     float32) compiles a loop that the call cannot use, so the call compiles its own; the
     results are those of a run without compiling ahead."""
     sampler = fresh_sampler(2.0)
-    monkeypatch.setattr(restore.JumpRestore, "calibration_stand_in", _float32_rate)
+    monkeypatch.setattr(restore._run, "calibrated_like", _float32_rate)
     ahead_of_the_wrong_program = run(sampler, 3)
     assert compilations().count("jit(advance)") == 2
     monkeypatch.setenv("RESTORE_COMPILE_AHEAD", "0")
