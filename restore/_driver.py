@@ -14,6 +14,9 @@ function that waits for it, commits it and returns its steps. Under a step budge
 driver then dispatches the next chunk before it waits for the last one, so the device
 never waits for the host between chunks (the host's work per chunk, a few scalars for
 the progress bar, overlaps the device's).
+
+After the budget, the open tours are run to their end by `drive_finishing`: calls of the
+caller's finishing program, with their own progress bar, until none is open.
 """
 
 from __future__ import annotations
@@ -252,3 +255,23 @@ def drive(
                     continue
     write()
     return Outcome(done, interrupted, elapsed())
+
+
+def drive_finishing(call: Callable[[], tuple[int, int, bool]], opened: int, progress: bool) -> int:
+    """Run the open tours to their end after the budget: `call()` until it says it is over.
+
+    `call` runs one call of the caller's finishing program (no tour starts in it), commits
+    what it did and returns `(steps it took, tours still open, over)`. Between calls a progress
+    bar counts the tours closed out of the `opened` ones; Ctrl-C stops the finishing there
+    (a `KeyboardInterrupt` for the caller, which keeps the calls it committed). Returns the
+    steps taken. Used by `restore.sample` (`_run.Run`) and `restore.render.render`.
+    """
+    meter = Meter(progress and opened > 0, "finishing the open tours (none start)", opened, "tours")
+    steps = 0
+    with meter.shown():
+        while True:
+            taken, still_open, over = call()
+            steps += taken
+            meter.update(opened - still_open, f"{still_open:,} open, {steps:,} steps")
+            if over:
+                return steps

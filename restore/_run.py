@@ -38,7 +38,7 @@ from ._checkpoint import (
     save_checkpoint,
 )
 from ._compile import jit
-from ._driver import Budget, Meter, drive
+from ._driver import Budget, Meter, drive, drive_finishing
 from ._observables import Observables
 from ._options import Checkpoint, SaveDraws, as_checkpoint
 from ._result import SampleResult
@@ -427,14 +427,16 @@ class Run:
             taken = put(taken, self.sharding.lanes)
         limit = jnp.asarray(self.finish_limit, jnp.int32)
         opened = int(jnp.sum(active(carry.sums), dtype=jnp.int32))
-        meter = Meter(self.progress and opened > 0, "finishing the open tours (none start)", opened, "tours")
-        with meter.shown():
-            while True:
-                carry, report, finished = finish(self._chunk(FINISHING_CALL, True, self.width, taken, limit), carry)
-                taken, steps, still_open = finished.taken, steps + int(report.steps), int(report.open_tours)
-                meter.update(opened - still_open, f"{still_open:,} open, {steps:,} steps")
-                if int(finished.waiting) == 0:
-                    return fold_finishing(carry, self.sharding), steps, still_open
+        still_open = opened
+
+        def call() -> tuple[int, int, bool]:  # one call of the narrow batch, committed
+            nonlocal carry, taken, still_open
+            carry, report, finished = finish(self._chunk(FINISHING_CALL, True, self.width, taken, limit), carry)
+            taken, still_open = finished.taken, int(report.open_tours)
+            return int(report.steps), still_open, int(finished.waiting) == 0
+
+        steps += drive_finishing(call, opened, self.progress)
+        return fold_finishing(carry, self.sharding), steps, still_open
 
     def result(self) -> SampleResult:
         """The run's result, read from the device once (gathered over devices and processes)."""

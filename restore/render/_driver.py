@@ -17,7 +17,7 @@ import numpy as np
 
 from .._checkpoint import key_fingerprint, load_checkpoint, save_checkpoint
 from .._compile import compiler_options
-from .._driver import Budget, Meter, drive
+from .._driver import Budget, Meter, drive, drive_finishing
 from .._options import Checkpoint, as_checkpoint
 from .._threefry import unrolled_keys
 from .._validation import check_key
@@ -460,26 +460,31 @@ def _rung(finishers, still_open: int):
 
 
 def _finish(renderer, finisher, state, totals, key_run, chunks, chunk, progress, lanes, step_cost):
-    """Complete the open work: no new work starts; each step evaluates the points of one
-    finisher's batch (`_rung`: the smallest that holds the open tours), shared among the
-    open lanes (Restore: speculative steps along each open tour), `chunk` steps a call,
-    until nothing is open. The tallies are drained after every call.
+    """Complete the open work (`_driver.drive_finishing`): no new work starts; each step
+    evaluates the points of one finisher's batch (`_rung`: the smallest that holds the open
+    tours), shared among the open lanes (Restore: speculative steps along each open tour),
+    `chunk` steps a call, until nothing is open. The tallies are drained after every call.
     Returns `((totals, chunks, steps, evaluations, seconds), interrupted)`; Ctrl-C keeps every
     call that finished."""
-    start, taken, evaluations = time.perf_counter(), 0, 0
+    start = time.perf_counter()
     state = renderer.stop_starting(state)
-    open_work = renderer.open_tours(state)
-    meter = Meter(progress and open_work > 0, "finishing open tours (none start)", open_work, "tours")
-    try:
-        with meter.shown():
-            while (still_open := renderer.open_tours(state)) > 0:
-                meter.update(open_work - still_open, f"{still_open:,} open, {taken:,} steps")
-                slots, finish = _rung(finisher, still_open)
-                advanced, n = finish(jax.random.fold_in(key_run, chunks), state, jnp.asarray(chunk, jnp.int32))
-                drained = host_tally(advanced.tally, totals)
-                state, totals, chunks = zero_tally(advanced), drained, chunks + 1
-                taken, evaluations = taken + int(n), evaluations + int(n) * slots * step_cost // lanes
-            meter.update(open_work, f"{taken:,} steps")
-    except KeyboardInterrupt:
-        return (totals, chunks, taken, evaluations, time.perf_counter() - start), True
-    return (totals, chunks, taken, evaluations, time.perf_counter() - start), False
+    opened = still_open = renderer.open_tours(state)
+    taken = evaluations = 0
+
+    def call() -> tuple[int, int, bool]:  # one call of a finisher, drained and committed
+        nonlocal state, totals, chunks, taken, evaluations, still_open
+        slots, finish = _rung(finisher, still_open)
+        advanced, n = finish(jax.random.fold_in(key_run, chunks), state, jnp.asarray(chunk, jnp.int32))
+        drained, n = host_tally(advanced.tally, totals), int(n)
+        state, totals, chunks = zero_tally(advanced), drained, chunks + 1
+        taken, evaluations = taken + n, evaluations + n * slots * step_cost // lanes
+        still_open = renderer.open_tours(state)
+        return n, still_open, still_open == 0
+
+    interrupted = False
+    if opened > 0:
+        try:
+            drive_finishing(call, opened, progress)
+        except KeyboardInterrupt:
+            interrupted = True
+    return (totals, chunks, taken, evaluations, time.perf_counter() - start), interrupted
