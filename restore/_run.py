@@ -1,11 +1,11 @@
 """One run of `restore.sample` (`Run`): set up, the step budget, the finishing of open tours, the result.
 
-A run is a sequence of chunks, each one compiled `jax.lax.while_loop` that steps every
+A run is a sequence of chunks, each one compiled loop (`_chunk.run_steps`) that steps every
 lane (`_run_loop.advance`); the host drives the chunks (`_driver.drive`: their lengths,
 checkpoints and progress). After the step budget, the tours still open are run to their
-end by another `while_loop`: over a narrower batch of the open lanes
-(`_run_loop.finish`), after a first pass over every lane where there are too few lanes to
-start with the narrow batch.
+end (`_driver.drive_finishing`) by calls of another such loop: over a narrower batch of the
+open lanes (`_run_loop.finish`), after a first pass over every lane where there are too few
+lanes to start with the narrow batch.
 """
 
 from __future__ import annotations

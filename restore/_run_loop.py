@@ -50,6 +50,7 @@ from ._accumulators import (
     update_histogram,
     update_step_sums,
 )
+from ._chunk import run_steps
 from ._compile import jit, jit_chunk
 from ._exceedances import append, make_room
 from ._observables import Observables
@@ -309,14 +310,12 @@ def advance(chunk: Chunk, carry: RunCarry) -> tuple[RunCarry, ChunkReport]:
     """
     sampler, observe, lane_keys, length, finishing, thin, rao_blackwell, sharding = chunk[:8]
 
-    def cond(loop):
-        carry, done = loop
+    def going(carry):
         if sharding is not None:  # no cross-device reduction per step unless finishing
-            return (done < length) & jax.lax.cond(finishing, lambda: jnp.any(active(carry.sums)), lambda: jnp.asarray(True))
-        return (done < length) & (~finishing | jnp.any(active(carry.sums)))
+            return jax.lax.cond(finishing, lambda: jnp.any(active(carry.sums)), lambda: jnp.asarray(True))
+        return ~finishing | jnp.any(active(carry.sums))
 
-    def body(loop):
-        carry, done = loop
+    def body(_, carry):
         keys = jax.vmap(lambda k: jax.random.fold_in(k, carry.step))(lane_keys)
         if sharding is None:
             new_states, info = sampler.step_lanes(keys, carry.states)
@@ -349,13 +348,13 @@ def advance(chunk: Chunk, carry: RunCarry) -> tuple[RunCarry, ChunkReport]:
         )
         if sharding is not None:
             new = jax.lax.with_sharding_constraint(new, carry_shardings(new, sharding))
-        return new, done + 1
+        return new
 
     lane_keys = unrolled_keys(lane_keys)  # the same bits, a faster program on the CPU
     batch = event_batch(sampler, carry.lane.shape[0] // (1 if sharding is None else sharding.num_devices))
     if sharding is not None:
         carry = jax.lax.with_sharding_constraint(carry, carry_shardings(carry, sharding))
-    carry, done = jax.lax.while_loop(cond, body, (carry, jnp.zeros((), jnp.int32)))
+    carry, done = run_steps(body, carry, length, going)
     carry, report = _end_chunk(carry, done)
     if sharding is not None:
         carry = jax.lax.with_sharding_constraint(carry, carry_shardings(carry, sharding))
@@ -427,12 +426,8 @@ def _finish_lanes(
         slot_steps: Array  # finishing steps the slot's lane has taken
         live: Array  # the slot holds an open lane
         next: Array  # queue position of the next lane to take
-        done: Array  # iterations run
 
-    def cond(loop: Loop) -> Array:
-        return jnp.any(loop.live) & (loop.done < iterations)
-
-    def body(loop: Loop) -> Loop:
+    def body(_, loop: Loop) -> Loop:
         keys = jax.vmap(lambda k, j: jax.random.fold_in(k, base + j))(lane_keys[loop.slot_lane], loop.slot_steps)
         new_states, info = sampler.step_lanes(keys, loop.slot_states)
         values = jax.vmap(observe)(info.position)
@@ -455,15 +450,15 @@ def _finish_lanes(
             states, sums, histogram, tails, taken, new_lane,
             jax.tree.map(fresh, states, t.states), jax.tree.map(fresh, sums, t.sums),
             jnp.where(refill, taken[new_lane], slot_steps), (loop.live & ~done) | refill,
-            loop.next + jnp.sum(done, dtype=jnp.int32), loop.done + 1,
+            loop.next + jnp.sum(done, dtype=jnp.int32),
         )  # fmt: skip
 
     zero = jnp.zeros_like(total)  # varies with the lanes, as the loop's results do (under `shard_map`)
     start = Loop(
         states, sums, histogram, tails, taken, first, take(states, first), take(sums, first), taken[first],
-        slots < total, jnp.minimum(total, width) + zero, zero,
+        slots < total, jnp.minimum(total, width) + zero,
     )  # fmt: skip
-    end = jax.lax.while_loop(cond, body, start)
+    end, _ = run_steps(body, start, iterations, lambda loop: jnp.any(loop.live))
     home = jnp.where(end.live, end.slot_lane, num_lanes)  # the lanes still in a slot go back to their places
     put = lambda full, part: full.at[home].set(part, mode="drop")
     states, sums = jax.tree.map(put, end.states, end.slot_states), jax.tree.map(put, end.sums, end.slot_sums)

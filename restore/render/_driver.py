@@ -156,7 +156,7 @@ class _RenderRun:
     """One render: set up (budget, keys, checkpoint, compiled programs, start state), then
     `advance` through the budget, `finish` the open work, and read the `result`.
 
-    The renderer's `init` and a chunk of `chunk` steps (a `fori_loop`) are compiled once,
+    The renderer's `init` and a chunk of `chunk` steps (`renderer.run`) are compiled once,
     ahead of the run (`compile_seconds`, not counted in `seconds`), and kept for the next
     renders of the same set-up in this process (the same target object, an equal renderer,
     the same lanes: see `_programs`), which then start at once. Between chunks the device

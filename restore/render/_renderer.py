@@ -24,6 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int, PRNGKeyArray
 
+from .._chunk import run_steps
 from .._estimates import UnreliableEstimateWarning
 from .._point import Point
 from .._warnings import warn
@@ -204,12 +205,10 @@ class AbstractRenderer(eqx.Module):
         return state, jnp.zeros((), jnp.int32)
 
     def run(self, target, key: PRNGKeyArray, state, num_steps: Int[Array, ""] | int):
-        """`num_steps` steps in a `fori_loop` (the count may be traced: no recompilation)."""
-
-        def body(i, s):
-            return self.step(target, jax.random.fold_in(key, i), s)
-
-        return jax.lax.fori_loop(0, num_steps, body, state)
+        """`num_steps` steps, the `i`-th with the key `fold_in(key, i)`, on the chunk runner
+        of sampling and rendering (`restore._chunk.run_steps`: the count may be traced, so
+        one program serves every chunk length)."""
+        return run_steps(lambda i, s: self.step(target, jax.random.fold_in(key, i), s), state, num_steps)[0]
 
     def image(self, target, state, tally=None) -> Float[Array, "H W 3"]:
         """The image estimate `(H, W, 3)` from `state`, or from host `tally` totals (float64)."""

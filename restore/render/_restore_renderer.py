@@ -82,6 +82,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
+from .._chunk import run_steps
 from .._exceedances import Exceedances, init_exceedances, largest, offer
 from .._jump_restore import JumpRestore
 from .._pareto import pareto_k
@@ -530,16 +531,8 @@ class AbstractPSSRestore(AbstractRenderer):
         lanes = state.tour_moves.shape[0]
         slots = lanes if slots is None else min(int(slots), lanes)
         limit = jnp.iinfo(jnp.int32).max if max_steps is None else max_steps
-
-        def body(carry):
-            i, s = carry
-            return i + 1, self.finishing_step(target, jax.random.fold_in(key, i), s, slots)
-
-        steps, state = jax.lax.while_loop(
-            lambda c: (c[0] < limit) & jnp.any(c[1].in_tour), body,
-            (jnp.zeros((), jnp.int32), self.stop_starting(state)),
-        )
-        return state, steps
+        step = lambda i, s: self.finishing_step(target, jax.random.fold_in(key, i), s, slots)  # noqa: E731
+        return run_steps(step, self.stop_starting(state), limit, lambda s: jnp.any(s.in_tour))
 
     def scale(self, target, params: RestoreParams, tally: RestoreTally):
         """`W H c / N` (complete tours; `N` = tours started = lanes + kills while starting)
