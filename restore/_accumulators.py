@@ -24,7 +24,9 @@ class LaneSums(NamedTuple):
     standard error need. The open tour's partial sums wait until the tour ends. The
     `all_*` sums cover every step, complete tours or not (for lane-based estimates).
     The run loop updates them at every step (`update_lane_sums`) and, at the end of each
-    chunk, adds them to the run's totals on the device (`fold`).
+    chunk, adds them to the run's totals on the device (`fold`). `half_f` and `half_t` are
+    `all_f` and `all_t` as they stood at the middle of the step budget (`halved`): the two
+    halves of a lane's run, which show whether it has forgotten its start.
     """
 
     open_f: Float[Array, " m"]
@@ -51,6 +53,8 @@ class LaneSums(NamedTuple):
     num_negative_rate: Int[Array, ""]
     num_bound_exceeded: Int[Array, ""]
     max_bound_ratio: Float[Array, ""]
+    half_f: Float[Array, " m"]
+    half_t: Float[Array, ""]
 
 
 def init_lane_sums(num_lanes: int, size: int, dtype, skip_first: Array) -> LaneSums:
@@ -173,6 +177,7 @@ _FIELDS: dict[str, tuple[str, bool, bool]] = {
     "num_invalid": ("sum", False, True), "num_uncovered": ("sum", False, True), "num_accepted": ("sum", False, True),
     "num_regenerations": ("sum", False, True), "num_negative_rate": ("sum", False, True),
     "num_bound_exceeded": ("sum", False, True), "max_bound_ratio": ("max", False, False),
+    "half_f": ("state", True, False), "half_t": ("state", False, False),
 }  # fmt: skip
 if tuple(_FIELDS) != LaneSums._fields:  # pragma: no cover - a new field without a reduction is a bug
     raise AssertionError("every LaneSums field needs its reduction in _FIELDS, in order")
@@ -241,6 +246,14 @@ def fold(totals: Totals, sums: LaneSums, histogram: tuple[Array, Array]) -> Tota
     times, time_error = _add(totals.histogram[1], histogram[1], histogram_errors[1])
     error = None if totals.error is None else (tuple(new_errors), (count_error, time_error))
     return Totals(LaneSums(**merged), (counts, times), error)
+
+
+def halved(totals: Totals, sums: LaneSums, now: Array) -> tuple[Totals, LaneSums]:
+    """The totals and the restarted chunk sums with the totals' `all_f` and `all_t` kept as
+    the first half of the run (`half_f`, `half_t`) if `now` (the chunk ended at the middle of
+    the budget), else unchanged."""
+    keep = {"half_f": jnp.where(now, totals.sums.all_f, sums.half_f), "half_t": jnp.where(now, totals.sums.all_t, sums.half_t)}
+    return totals._replace(sums=totals.sums._replace(**keep)), sums._replace(**keep)
 
 
 def restart_sums(sums: LaneSums) -> LaneSums:

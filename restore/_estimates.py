@@ -66,8 +66,8 @@ class Estimate(NamedTuple):
 
 #: What `unreliable_reason` advises when there are too few terms (callers add no other advice then).
 FEW_TERMS_REMEDY = "run longer or with more lanes"
-#: Lane-based estimates are marked unreliable when the halves of the stored draws disagree by more
-#: than this many standard errors in some component (`start_transient`).
+#: Lane-based estimates are marked unreliable when the halves of the lanes' runs (or stored draws)
+#: disagree by more than this many standard errors in some component (`start_transient`).
 START_Z_LIMIT = 4.0
 #: What to do when the lanes have not forgotten their start (callers add no other advice then).
 START_REMEDY = "run longer, or start the lanes nearer the target (positions=)"
@@ -190,7 +190,8 @@ def halves_z(values, weights) -> np.ndarray | None:
 
 def halves_z_from_sums(f1, t1, f2, t2) -> np.ndarray | None:
     """`halves_z` from each lane's weighted sums `(lanes, ...)` and weights `(lanes,)` over the
-    first and the second half of its draws; `None` with fewer than 2 lanes."""
+    first and the second half of its run (or of its draws); `None` with fewer than 2 lanes, or
+    with a half of zero weight."""
     lanes = f1.shape[0]
     if lanes < 2:
         return None
@@ -206,12 +207,13 @@ def halves_z_from_sums(f1, t1, f2, t2) -> np.ndarray | None:
 
 
 def start_transient(z: np.ndarray | None) -> str:
-    """Why a lane-based estimate leans towards the lanes' start (`halves_z` above
-    `START_Z_LIMIT`), or `""`: no sign of it, or too few stored draws to look (`None`)."""
+    """Why a lane-based estimate leans towards the lanes' start (`halves_z` or
+    `halves_z_from_sums` above `START_Z_LIMIT`), or `""`: no sign of it, or nothing to
+    compare (`None`: too few stored draws, or a run with no second half)."""
     if z is None or not np.any(np.abs(z) > START_Z_LIMIT):
         return ""
     return (
-        f"the first and second halves of the lanes' stored draws disagree by up to {float(np.max(np.abs(z))):.1f} "
+        f"the first and second halves of the lanes' runs disagree by up to {float(np.max(np.abs(z))):.1f} "
         "standard errors: the lanes have not forgotten their start (a draw of the regeneration, with no burn-in), "
         f"so the estimate leans towards it; {START_REMEDY}"
     )

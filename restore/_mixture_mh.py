@@ -48,7 +48,7 @@ class MixtureMH(AbstractSampler):
     same local kernel and `nu` (the paper's section 6.1: MH tours end at accepted large
     steps). Each step costs one new density evaluation, like a jump-Restore step. Its lanes
     start at draws of `nu` with no burn-in: its (lane-based) estimates are marked unreliable
-    while the stored draws show that the lanes have not forgotten their start.
+    while the two halves of the lanes' runs show that they have not forgotten their start.
 
     Arguments:
         logdensity: unnormalised log density of one point `(d,)`.

@@ -61,8 +61,6 @@ def _kept(tails: TourTails | None) -> TourTails:
     return tails
 
 
-#: Stored draws whose observables `_draw_halves` evaluates at a time (rows x lanes).
-HALVES_BLOCK = 1 << 18
 
 
 @dataclasses.dataclass(eq=False)
@@ -139,7 +137,6 @@ class SampleResult:
     tours_dropped: bool = False
     _thinning_noted: bool = dataclasses.field(default=False, init=False, repr=False)
     _run_shapes: dict[str, np.ndarray] = dataclasses.field(default_factory=dict, init=False, repr=False)  # `_run_shape`
-    _halves: dict[str, tuple[np.ndarray, ...]] = dataclasses.field(default_factory=dict, init=False, repr=False)  # `_draw_halves`
 
     @classmethod
     def from_run(
@@ -232,8 +229,8 @@ class SampleResult:
             method: `"tours"` (regenerative ratio estimator over complete tours; the
                 default for Restore samplers) or `"lanes"` (lanes as independent
                 replicates, incomplete tours included; the default for MH: marked
-                unreliable when the halves of the stored draws show that the lanes have not
-                forgotten their start, `_estimates.halves_z`).
+                unreliable when the two halves of the lanes' runs show that the lanes have
+                not forgotten their start, `_estimates.halves_z_from_sums`).
             lanes: optional index (slice, integer array or mask) of the lanes to use,
                 e.g. to form independent replications from one run. Its `k_hat` is at least
                 the whole run's (`_run_shape`).
@@ -255,10 +252,9 @@ class SampleResult:
             est = est._replace(k_hat=k_hat, k_limit=k_hat_limit(n), caveat=self._caveat(lanes))
         else:
             est = lane_ratio(pick(s.all_f)[:, cut], pick(s.all_t))
-            halves = self._draw_halves(name)
-            if halves is not None and lanes is not None:
-                halves = tuple(h[lanes] for h in halves)
-            est = est._replace(caveat=start_transient(None if halves is None else halves_z_from_sums(*halves)))
+            f1, t1 = pick(s.half_f)[:, cut], pick(s.half_t)
+            halves = halves_z_from_sums(f1, t1, pick(s.all_f)[:, cut] - f1, pick(s.all_t) - t1)
+            est = est._replace(caveat=start_transient(halves))
         shape = lambda a: np.reshape(a, slot.shape)  # noqa: E731
         shaped = Estimate(shape(est.value), shape(est.standard_error), shape(est.k_hat), est.k_limit, est.caveat)
         _warn_unreliable(f"the estimate of {name!r}", shaped, self.advice)
@@ -345,30 +341,6 @@ class SampleResult:
                 warnings.simplefilter("ignore", UnreliableEstimateWarning)
                 self._run_shapes[key] = np.asarray(whole_run().k_hat, np.float64)
         return self._run_shapes[key]
-
-    def _draw_halves(self, name: str) -> tuple[np.ndarray, ...] | None:
-        """Each lane's weighted sums of observable `name` and its weights over the first and the
-        second half of its stored draws (`halves_z_from_sums`), or `None` with fewer than 4 rows.
-        Computed once per observable, a block of rows at a time (memory of a block, not of every
-        draw's values)."""
-        half = self.draws.shape[0] // 2
-        if half < 2:
-            return None
-        if name not in self._halves:
-            fn = self.observables.functions[[slot.name for slot in self.observables.slots].index(name)]
-            values = jax.vmap(jax.vmap(lambda x: jax.numpy.ravel(fn(x))))
-            block = max(1, HALVES_BLOCK // max(1, self.num_lanes))
-            sums = []
-            for rows in (range(0, half), range(half, 2 * half)):
-                f, t = 0.0, 0.0
-                for start in range(rows.start, rows.stop, block):
-                    part = slice(start, min(start + block, rows.stop))
-                    w = self.draw_weights[part].astype(np.float64)
-                    f = f + np.einsum("rl,rl...->l...", w, np.asarray(values(self.draws[part]), np.float64))
-                    t = t + w.sum(axis=0)
-                sums += [np.asarray(f), np.asarray(t)]
-            self._halves[name] = tuple(sums)
-        return self._halves[name]
 
     def _caveat(self, lanes=None) -> str:
         """Why the tour-based error bars cannot be trusted, whatever their tail fit says (`""`: no reason)."""

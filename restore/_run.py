@@ -78,7 +78,7 @@ Weights = Literal["rao_blackwell", "time"]
 logger = logging.getLogger("restore")
 
 #: Checkpoints of `restore.sample` hold the run's state in this layout (older ones are refused).
-STATE_LAYOUT = "device-totals/2"
+STATE_LAYOUT = "device-totals/3"
 
 
 @jit(static_argnums=1, once=True)
@@ -128,7 +128,7 @@ def _compile_run_ahead(like, init_keys, positions, lane_keys, observables, capac
         shape = _carry_shape(init_keys.shape[0], observe, like.has_tours, capacity, positions is not None, None)
         layout = jax.eval_shape(functools.partial(start_carry, shape=shape), states)
         carry = jax.tree.map(lambda a: np.zeros(a.shape, a.dtype), layout)  # NumPy: no program to compile
-        scalars = (np.zeros((), np.int32), np.zeros((), bool), np.zeros((), np.int32))  # length, finishing, thin
+        scalars = (np.zeros((), np.int32), np.zeros((), bool), np.zeros((), np.int32), np.zeros((), np.int32))  # length, finishing, thin, half
         return Chunk(like, observe, lane_keys, *scalars, rao_blackwell, None), carry
 
     inputs = (like, init_keys, positions, lane_keys, observables, capacity, rao_blackwell)
@@ -315,7 +315,8 @@ class Run:
                     raise CheckpointError(f"checkpoint {checkpoint.path} is inconsistent: step {int(carry.step)}, header {self.done}")
         self.committed: RunCarry = carry  # the last chunk the host has waited for
         self.head: RunCarry = carry  # the last chunk dispatched (the next chunk starts from it)
-        self.committed_steps = self.done
+        self.committed_steps = self.dispatched = self.done
+        self.half = jnp.asarray(num_steps // 2, jnp.int32)  # on the device once, not per chunk
         self.trace_rows: list[tuple] = []  # per-chunk totals, from the chunks' reports
         self.width, self.wide_first = finishing_width(num_lanes // (1 if sharding is None else sharding.num_devices))
         self.session_start = time.perf_counter()
@@ -323,21 +324,34 @@ class Run:
     def _chunk(self, length, finishing: bool, width: int = 0, taken: Array | None = None, limit: Array | None = None) -> Chunk:
         return Chunk(
             self.sampler, self.observe, self.lane_keys, jnp.asarray(length, jnp.int32), jnp.asarray(finishing), self.thin,
-            self.rao_blackwell, self.sharding, width, taken, limit,
+            self.half, self.rao_blackwell, self.sharding, width, taken, limit,
         )  # fmt: skip
 
     def _dispatch(self, length: int) -> Callable[[], int]:
-        """Dispatch a chunk after the last one dispatched; the function returned waits for it and commits it."""
-        carry, report = advance(self._chunk(length, False), self.head)  # `head`'s buffers are donated to `carry`
-        self.head = carry
+        """Dispatch a chunk after the last one dispatched (cut in two at the middle of the budget,
+        where the lanes' sums so far are kept as the run's first half); the function returned
+        waits for it and commits it."""
+        start, middle = self.dispatched, self.num_steps // 2
+        self.dispatched += length
+        parts = [middle - start, start + length - middle] if start < middle < start + length else [length]
+        reports = []
+        for part in parts:
+            carry, report = advance(self._chunk(part, False), self.head)  # `head`'s buffers are donated to `carry`
+            self.head = carry
+            reports.append(report)
 
         def commit() -> int:
-            host = [np.asarray(x) for x in report]  # waits
-            steps = int(host[0])
-            time_, accepted, regenerations = (int(x) if x.dtype.kind == "i" else float(x) for x in host[1:4])
-            self.committed, self.committed_steps = carry, self.committed_steps + steps  # (`carry` may have given its buffers to the next chunk already)
-            self.trace_rows.append((self.committed_steps, steps * self.num_lanes, time_, accepted, regenerations))
-            return steps
+            rows, before = [], self.committed_steps
+            done = before
+            for report in reports:
+                host = [np.asarray(x) for x in report]  # waits
+                steps = int(host[0])
+                time_, accepted, regenerations = (int(x) if x.dtype.kind == "i" else float(x) for x in host[1:4])
+                done += steps
+                rows.append((done, steps * self.num_lanes, time_, accepted, regenerations))
+            self.committed, self.committed_steps = carry, done  # (`carry` may have given its buffers to the next chunk already)
+            self.trace_rows += rows
+            return done - before
 
         return commit
 
@@ -358,7 +372,7 @@ class Run:
             # the narrow finishing program compiles in the background while the budget runs
             zero, carry = np.zeros((), np.int32), self.committed
             taken = np.zeros((self.num_lanes,), np.int32)
-            chunk = Chunk(self.sampler, self.observe, self.lane_keys, zero, np.zeros((), bool), zero, self.rao_blackwell, None, self.width, taken, zero)
+            chunk = Chunk(self.sampler, self.observe, self.lane_keys, zero, np.zeros((), bool), zero, zero, self.rao_blackwell, None, self.width, taken, zero)
             inputs = (self.sampler, self.observe, carry, self.lane_keys, self.rao_blackwell, self.width)
             finisher = compile_ahead(finish, lambda: (chunk, _zeros_like(carry)), inputs)
         self.finisher = finisher

@@ -42,6 +42,7 @@ from ._accumulators import (
     add_events,
     counted_ends,
     fold,
+    halved,
     init_histogram,
     init_lane_sums,
     init_totals,
@@ -229,9 +230,13 @@ def _per_device(tree):
     return jax.tree.map(lambda a: a[None], tree)
 
 
-def _end_chunk(carry: RunCarry, steps: Array) -> tuple[RunCarry, ChunkReport]:
-    """The chunk's report, and the carry with the chunk's sums and histogram added to the totals and restarted."""
-    return _folded(carry), _report(carry, steps)
+def _end_chunk(carry: RunCarry, steps: Array, half: Array | np.ndarray) -> tuple[RunCarry, ChunkReport]:
+    """The chunk's report, and the carry with the chunk's sums and histogram added to the totals
+    and restarted (and, if the chunk ended at step `half`, the lanes' sums so far kept as the
+    first half of the run: `_accumulators.halved`)."""
+    folded = _folded(carry)
+    totals, sums = halved(folded.totals, folded.sums, carry.step == half)
+    return folded._replace(totals=totals, sums=sums), _report(carry, steps)
 
 
 def _report(carry: RunCarry, steps: Array) -> ChunkReport:
@@ -267,6 +272,8 @@ class Chunk(NamedTuple):
             `thin`, `taken` and `limit`) only where a chunk is built to compile ahead.
         finishing: finish the open tours (start none), else run the step budget.
         thin: store the state every `thin` steps.
+        half: the middle of the step budget: a chunk that ends at this step keeps the
+            lanes' sums so far as the first half of the run (`_accumulators.halved`).
         rao_blackwell: weigh by the expected holding times (static).
         sharding: how the lanes are split over devices (static; `None` on one device).
         width: slots of the narrow finishing batch (`finish` only; static).
@@ -280,6 +287,7 @@ class Chunk(NamedTuple):
     length: Array | np.ndarray
     finishing: Array | np.ndarray
     thin: Array | np.ndarray
+    half: Array | np.ndarray
     rao_blackwell: bool
     sharding: LaneSharding | None = None
     width: int = 0
@@ -308,7 +316,7 @@ def advance(chunk: Chunk, carry: RunCarry) -> tuple[RunCarry, ChunkReport]:
     do not talk to each other within a chunk (when finishing, they agree at every step
     whether any lane is still in a tour); the chunk's report is a sum over them.
     """
-    sampler, observe, lane_keys, length, finishing, thin, rao_blackwell, sharding = chunk[:8]
+    sampler, observe, lane_keys, length, finishing, thin, half, rao_blackwell, sharding = chunk[:9]
 
     def going(carry):
         if sharding is not None:  # no cross-device reduction per step unless finishing
@@ -355,7 +363,7 @@ def advance(chunk: Chunk, carry: RunCarry) -> tuple[RunCarry, ChunkReport]:
     if sharding is not None:
         carry = jax.lax.with_sharding_constraint(carry, carry_shardings(carry, sharding))
     carry, done = run_steps(body, carry, length, going)
-    carry, report = _end_chunk(carry, done)
+    carry, report = _end_chunk(carry, done, half)
     if sharding is not None:
         carry = jax.lax.with_sharding_constraint(carry, carry_shardings(carry, sharding))
     return carry, report
@@ -491,7 +499,7 @@ def finish(chunk: Chunk, carry: RunCarry) -> tuple[RunCarry, ChunkReport, Finish
     With a `sharding`, each device finishes its own lanes (`width` slots each), without
     talking to the others. The carry is donated.
     """
-    sampler, observe, lane_keys, iterations, _, _, rao_blackwell, sharding, width, taken, limit = chunk
+    sampler, observe, lane_keys, iterations, _, _, _, rao_blackwell, sharding, width, taken, limit = chunk
     if taken is None or limit is None:
         raise ValueError("finish needs the finishing steps each lane took so far (`taken`) and their `limit`")
     lane_keys = unrolled_keys(lane_keys)
