@@ -11,12 +11,14 @@ chunks and narrow finishing batch (`_run_loop`) and a renderer's chunks and fini
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TypeVar
+from typing import Any, NamedTuple, TypeVar
 
 import jax
 import jax.numpy as jnp
 from jax.typing import ArrayLike
 from jaxtyping import Array, Int
+
+from ._sparse_draws import batch_lanes
 
 C = TypeVar("C")
 
@@ -44,3 +46,85 @@ def run_steps(
 
     done, carry = jax.lax.while_loop(cond, body, (jnp.zeros((), jnp.int32), carry))
     return carry, done
+
+
+class _Slots(NamedTuple):
+    """The loop of `run_open_lanes`."""
+
+    lanes: Any  # every lane's part of the carry (up to date for the lanes not in a slot)
+    shared: Any  # the carry's part that all lanes add to (histograms, tail buffers, films)
+    taken: Array  # steps each lane has taken (up to date for the lanes not in a slot)
+    slot_lane: Array  # the lane each slot holds
+    slot_lanes: Any  # the slots' lanes' parts of the carry
+    slot_steps: Array  # steps the slot's lane has taken
+    live: Array  # the slot holds an open lane
+    next: Array  # queue position of the next lane to take
+
+
+def run_open_lanes(
+    step: Callable[[Any, Any, Array, Array, Array, Array], tuple[Any, Any, Array]],
+    lanes: Any,
+    shared: Any,
+    open_: Array,
+    taken: Array,
+    limit: ArrayLike,
+    iterations: ArrayLike,
+    width: int,
+) -> tuple[Any, Any, Array, Int[Array, ""]]:
+    """Step the `open_` lanes, `width` at a time, until each one's work ends: the one finishing
+    procedure of sampling and rendering (the open tours after the budget).
+
+    A batch of `width` slots each holds an open lane (in lane order); every iteration steps
+    the batch, and a lane whose work ended (or that has taken `limit` steps) goes back to its
+    place in `lanes` while its slot takes the next open lane. So a few long tours cost a step
+    of the batch, not of every lane. Runs at most `iterations` iterations (`run_steps`); the
+    lanes still in a slot then are written back, to go on in a later call.
+
+    Arguments:
+        step: `step(slot_lanes, shared, slot_lane, slot_steps, live, iteration)` steps the
+            slots' lanes (`live`: the slots that hold an open lane; the others must not add to
+            `shared`) and returns `(slot_lanes, shared, ended)`.
+        lanes: each lane's part of the carry (a pytree with a leading lane axis).
+        shared: what every lane adds to (passed through `step`).
+        open_: the lanes to step.
+        taken: the steps each lane has taken so far (its slot's `slot_steps` start there).
+        limit: the most steps a lane may take.
+        iterations: the most iterations of the batch.
+        width: slots in the batch (static).
+
+    Returns:
+        `lanes`, `shared` and `taken` after the call, and the iterations it ran.
+    """
+    num_lanes = taken.shape[0]
+    open_ = open_ & (taken < limit)
+    queue = batch_lanes(open_, jnp.cumsum(open_, dtype=jnp.int32) - 1, jnp.zeros((), jnp.int32), num_lanes)  # open lanes in order
+    total = jnp.sum(open_, dtype=jnp.int32)
+    take = lambda tree, index: jax.tree.map(lambda a: a[index], tree)  # noqa: E731
+    slots = jnp.arange(width, dtype=jnp.int32)
+    first = jnp.minimum(queue[jnp.minimum(slots, num_lanes - 1)], num_lanes - 1)
+
+    def body(i: Array, loop: _Slots) -> _Slots:
+        slot_lanes, shared, ended = step(loop.slot_lanes, loop.shared, loop.slot_lane, loop.slot_steps, loop.live, i)
+        slot_steps = loop.slot_steps + loop.live.astype(jnp.int32)
+        done = loop.live & (ended | (slot_steps >= limit))  # the work ended, or the lane ran out of steps
+        # the lanes that are done go back to their places...
+        home = jnp.where(done, loop.slot_lane, num_lanes)  # out of range: not written
+        put = lambda full, part: full.at[home].set(part, mode="drop")  # noqa: E731
+        lanes = jax.tree.map(put, loop.lanes, slot_lanes)
+        taken = put(loop.taken, slot_steps)
+        # ...and their slots take the next open lanes of the queue
+        position = loop.next + jnp.cumsum(done, dtype=jnp.int32) - 1
+        refill = done & (position < total)
+        new_lane = jnp.where(refill, queue[jnp.minimum(position, num_lanes - 1)], loop.slot_lane)
+        fresh = lambda full, part: jnp.where(refill.reshape((-1,) + (1,) * (part.ndim - 1)), full[new_lane], part)  # noqa: E731
+        return _Slots(
+            lanes, shared, taken, new_lane, jax.tree.map(fresh, lanes, slot_lanes), jnp.where(refill, taken[new_lane], slot_steps),
+            (loop.live & ~done) | refill, loop.next + jnp.sum(done, dtype=jnp.int32),
+        )  # fmt: skip
+
+    zero = jnp.zeros_like(total)  # varies with the lanes, as the loop's results do (under `shard_map`)
+    start = _Slots(lanes, shared, taken, first, take(lanes, first), taken[first], slots < total, jnp.minimum(total, width) + zero)
+    end, iterations_run = run_steps(body, start, iterations, lambda loop: jnp.any(loop.live))
+    home = jnp.where(end.live, end.slot_lane, num_lanes)  # the lanes still in a slot go back to their places
+    put = lambda full, part: full.at[home].set(part, mode="drop")  # noqa: E731
+    return jax.tree.map(put, end.lanes, end.slot_lanes), end.shared, put(end.taken, end.slot_steps), iterations_run

@@ -51,7 +51,7 @@ from ._accumulators import (
     update_histogram,
     update_step_sums,
 )
-from ._chunk import run_steps
+from ._chunk import run_open_lanes, run_steps
 from ._compile import jit, jit_chunk
 from ._exceedances import append, make_room
 from ._observables import Observables
@@ -405,72 +405,28 @@ def finishing_limit(num_steps: int, limit: int | None = None) -> int:
 def _finish_lanes(
     sampler, observe, states, sums, histogram, tails, lane, taken, lane_keys, base, limit, iterations, rao_blackwell: bool, width: int
 ):
-    """Run each lane's open tour towards its end, `width` lanes at a time (see the module
-    docstring), for at most `iterations` steps of the batch; a lane stops when its tour ends
-    or it has taken `limit` finishing steps.
+    """Run each lane's open tour towards its end, `width` lanes at a time (`_chunk.run_open_lanes`,
+    see the module docstring), for at most `iterations` steps of the batch; a lane stops when
+    its tour ends or it has taken `limit` finishing steps.
 
     `taken`: the finishing steps each lane has taken; its `j`-th draws with the key of step
     `base + j`. Returns the lanes' states and sums (those still in a slot written back, to
     go on in the next call), the histogram, the tails and `taken`.
     """
-    num_lanes = lane.shape[0]
     batch = event_batch(sampler, width)
-    open_ = active(sums) & (taken < limit)
-    queue = batch_lanes(open_, jnp.cumsum(open_, dtype=jnp.int32) - 1, jnp.zeros((), jnp.int32), num_lanes)  # open lanes in order
-    total = jnp.sum(open_, dtype=jnp.int32)
-    take = lambda tree, index: jax.tree.map(lambda a: a[index], tree)
-    slots = jnp.arange(width, dtype=jnp.int32)
-    first = jnp.minimum(queue[jnp.minimum(slots, num_lanes - 1)], num_lanes - 1)
 
-    class Loop(NamedTuple):
-        states: Any
-        sums: LaneSums
-        histogram: Any
-        tails: Any
-        taken: Array  # finishing steps each lane has taken (up to date for the lanes not in a slot)
-        slot_lane: Array  # the lane each slot holds
-        slot_states: Any
-        slot_sums: LaneSums
-        slot_steps: Array  # finishing steps the slot's lane has taken
-        live: Array  # the slot holds an open lane
-        next: Array  # queue position of the next lane to take
-
-    def body(_, loop: Loop) -> Loop:
-        keys = jax.vmap(lambda k, j: jax.random.fold_in(k, base + j))(lane_keys[loop.slot_lane], loop.slot_steps)
-        new_states, info = sampler.step_lanes(keys, loop.slot_states)
+    def step(slot, shared, slot_lane, slot_steps, live, _):
+        slot_states, slot_sums = slot
+        keys = jax.vmap(lambda k, j: jax.random.fold_in(k, base + j))(lane_keys[slot_lane], slot_steps)
+        new_states, info = sampler.step_lanes(keys, slot_states)
         values = jax.vmap(observe)(info.position)
-        t = _tally(loop.slot_states, loop.slot_sums, loop.histogram, loop.tails, loop.slot_lane, new_states, info, values, rao_blackwell, batch, loop.live)
-        histogram, tails = t.histogram, t.tails
-        ended = counted_ends(loop.slot_sums, info) & loop.live
-        slot_steps = loop.slot_steps + loop.live.astype(jnp.int32)
-        done = loop.live & (ended | (slot_steps >= limit))  # the tour ended, or the lane ran out of steps
-        # the lanes that are done go back to their places...
-        home = jnp.where(done, loop.slot_lane, num_lanes)  # out of range: not written
-        put = lambda full, part: full.at[home].set(part, mode="drop")
-        states, sums = jax.tree.map(put, loop.states, t.states), jax.tree.map(put, loop.sums, t.sums)
-        taken = put(loop.taken, slot_steps)
-        # ...and their slots take the next open lanes of the queue
-        position = loop.next + jnp.cumsum(done, dtype=jnp.int32) - 1
-        refill = done & (position < total)
-        new_lane = jnp.where(refill, queue[jnp.minimum(position, num_lanes - 1)], loop.slot_lane)
-        fresh = lambda full, part: jnp.where(refill.reshape((-1,) + (1,) * (part.ndim - 1)), full[new_lane], part)
-        return Loop(
-            states, sums, histogram, tails, taken, new_lane,
-            jax.tree.map(fresh, states, t.states), jax.tree.map(fresh, sums, t.sums),
-            jnp.where(refill, taken[new_lane], slot_steps), (loop.live & ~done) | refill,
-            loop.next + jnp.sum(done, dtype=jnp.int32),
-        )  # fmt: skip
+        t = _tally(slot_states, slot_sums, *shared, slot_lane, new_states, info, values, rao_blackwell, batch, live)
+        return (t.states, t.sums), (t.histogram, t.tails), counted_ends(slot_sums, info) & live
 
-    zero = jnp.zeros_like(total)  # varies with the lanes, as the loop's results do (under `shard_map`)
-    start = Loop(
-        states, sums, histogram, tails, taken, first, take(states, first), take(sums, first), taken[first],
-        slots < total, jnp.minimum(total, width) + zero,
-    )  # fmt: skip
-    end, _ = run_steps(body, start, iterations, lambda loop: jnp.any(loop.live))
-    home = jnp.where(end.live, end.slot_lane, num_lanes)  # the lanes still in a slot go back to their places
-    put = lambda full, part: full.at[home].set(part, mode="drop")
-    states, sums = jax.tree.map(put, end.states, end.slot_states), jax.tree.map(put, end.sums, end.slot_sums)
-    return states, sums, end.histogram, end.tails, put(end.taken, end.slot_steps)
+    (states, sums), (histogram, tails), taken, _ = run_open_lanes(
+        step, (states, sums), (histogram, tails), active(sums), taken, limit, iterations, width
+    )
+    return states, sums, histogram, tails, taken
 
 
 class Finished(NamedTuple):

@@ -82,7 +82,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
-from .._chunk import run_steps
+from .._chunk import run_open_lanes, run_steps
 from .._exceedances import Exceedances, init_exceedances, largest, offer
 from .._jump_restore import JumpRestore
 from .._pareto import pareto_k
@@ -460,12 +460,9 @@ class AbstractPSSRestore(AbstractRenderer):
         return self.finish_tours and self.kernel.proposes_from_position
 
     def finishing_step(self, target, key: PRNGKeyArray, state: RestoreRenderState, slots: int) -> RestoreRenderState:
-        """Advance the open tours (no new tour starts) with one batched evaluation of `slots`
-        points: speculative steps (`speculates`: each open lane gets a tree of `slots // open`
-        candidate events, shaped by its tour's acceptance so far), else one plain step of the
-        first `slots` open lanes."""
-        if not self.speculates:
-            return self._step_open_lanes(target, key, state, slots)
+        """Advance the open tours (no new tour starts) by speculative steps (`speculates`): one
+        batched evaluation of `slots` candidate events, each open lane a tree of `slots // open`
+        of them, shaped by its tour's acceptance so far."""
         sampler = self.sampler(target, state.params)
         guess = (state.tour_accepted + 1.0) / (state.tour_moves + 2.0)  # this tour's acceptance so far
         run = speculative_steps(sampler, key, state.lanes, state.in_tour, slots, guess)
@@ -488,30 +485,28 @@ class AbstractPSSRestore(AbstractRenderer):
         )
         return state._replace(**_end_tours(state, duration, ended))
 
-    def _step_open_lanes(self, target, key: PRNGKeyArray, state: RestoreRenderState, slots: int) -> RestoreRenderState:
-        """One step of the first `slots` open lanes (gathered, stepped, put back; closed lanes
-        that fill the slots are stepped too but keep their state and count nothing)."""
-        index = jnp.argsort(~state.in_tour, stable=True)[:slots]  # open lanes first
-        take = lambda x: x[index]  # noqa: E731
-        part = state._replace(
-            lanes=jax.tree.map(take, state.lanes), tour_moves=take(state.tour_moves),
-            tour_accepted=take(state.tour_accepted), tour_duration=take(state.tour_duration),
-            in_tour=take(state.in_tour),
-        )
-        part = self._step(target, key, part, index.astype(jnp.int32))
-        was_open = state.in_tour[index]  # lanes taken to fill the slots keep their state
+    def _finish_open_lanes(self, target, key: PRNGKeyArray, state: RestoreRenderState, max_steps, slots: int):
+        """Plain steps of the open lanes, `slots` at a time (`restore._chunk.run_open_lanes`, the
+        core's finishing procedure): a slot holds an open lane until its tour ends, then takes
+        the next. Step `i` of the batch draws with `fold_in(key, i)`."""
 
-        def put(whole, x):
-            keep = was_open.reshape(was_open.shape + (1,) * (x.ndim - 1))
-            return whole.at[index].set(jnp.where(keep, x, whole[index]))
+        def step(slot, shared, slot_lane, _, live, i):
+            tally, tails = shared
+            part = state._replace(
+                lanes=slot[0], tour_moves=slot[1], tour_accepted=slot[2], tour_duration=slot[3], in_tour=slot[4] & live,
+                tally=tally, tails=tails,
+            )  # fmt: skip
+            after = self._step(target, jax.random.fold_in(key, i), part, slot_lane)
+            lanes = (after.lanes, after.tour_moves, after.tour_accepted, after.tour_duration, after.in_tour)
+            return lanes, (after.tally, after.tails), live & ~after.in_tour
 
-        return part._replace(
-            lanes=jax.tree.map(put, state.lanes, part.lanes),
-            tour_moves=put(state.tour_moves, part.tour_moves),
-            tour_accepted=put(state.tour_accepted, part.tour_accepted),
-            tour_duration=put(state.tour_duration, part.tour_duration),
-            in_tour=put(state.in_tour, part.in_tour),
-        )
+        lanes = (state.lanes, state.tour_moves, state.tour_accepted, state.tour_duration, state.in_tour)
+        taken = jnp.zeros(state.in_tour.shape, jnp.int32)
+        limit = jnp.iinfo(jnp.int32).max
+        lanes, (tally, tails), _, steps = run_open_lanes(step, lanes, (state.tally, state.tails), state.in_tour, taken, limit, max_steps, slots)
+        moves, accepted, duration, in_tour = lanes[1:]
+        state = state._replace(lanes=lanes[0], tour_moves=moves, tour_accepted=accepted, tour_duration=duration, in_tour=in_tour)
+        return state._replace(tally=tally, tails=tails), steps
 
     def open_tours(self, state: RestoreRenderState) -> int:
         """Lanes whose counted tour is still running (host-side): `finish` runs them to their end."""
@@ -524,15 +519,20 @@ class AbstractPSSRestore(AbstractRenderer):
     def finish(self, target, key: PRNGKeyArray, state: RestoreRenderState, max_steps=None, slots=None):
         """With complete tours: start no new tour and run every open tour to its end, each
         step one batched evaluation of `slots` points (default: the lanes) shared among the
-        open tours (`finishing_step`); at most `max_steps` steps if given. Returns the state
-        and the steps taken."""
+        open tours: speculative steps (`finishing_step`, when the kernel `speculates`), else
+        plain steps of the open lanes `slots` at a time, by the core's finishing procedure
+        (`restore._chunk.run_open_lanes`); at most `max_steps` steps if given. Returns the
+        state and the steps taken."""
         if not self.finish_tours:
             return state, jnp.zeros((), jnp.int32)
         lanes = state.tour_moves.shape[0]
         slots = lanes if slots is None else min(int(slots), lanes)
         limit = jnp.iinfo(jnp.int32).max if max_steps is None else max_steps
+        state = self.stop_starting(state)
+        if not self.speculates:
+            return self._finish_open_lanes(target, key, state, limit, slots)
         step = lambda i, s: self.finishing_step(target, jax.random.fold_in(key, i), s, slots)  # noqa: E731
-        return run_steps(step, self.stop_starting(state), limit, lambda s: jnp.any(s.in_tour))
+        return run_steps(step, state, limit, lambda s: jnp.any(s.in_tour))
 
     def scale(self, target, params: RestoreParams, tally: RestoreTally):
         """`W H c / N` (complete tours; `N` = tours started = lanes + kills while starting)
