@@ -61,8 +61,6 @@ def _kept(tails: TourTails | None) -> TourTails:
     return tails
 
 
-
-
 @dataclasses.dataclass(eq=False)
 class SampleResult:
     """What `restore.sample` returns: streamed sums, thinned draws and run facts.
