@@ -174,8 +174,9 @@ class _RenderRun:
     Restore with `finish_tours`) then starts nothing new and steps until that work is done.
     A finishing step evaluates a batch of points shared among the open lanes, so a few long
     tours do not cost a full batch per step: the smallest of `finishing_rungs(lanes)` (a
-    quarter of the lanes, at least 64, then quarters of that down to 256) that holds one
-    point per open tour. Restore with a Metropolis small step runs its open tours by
+    quarter of the lanes, at least 64, then quarters of that down to the renderer's
+    `smallest_finishing_batch()`) that holds one point per open tour, chosen again every
+    `_FINISHING_CALL` steps. Restore with a Metropolis small step runs its open tours by
     speculative steps there (`restore.speculative_steps`). The finishing programs are
     compiled ahead too. Finishing comes on top of the budget: its steps and time are in
     `finishing_steps`, `finishing_seconds`, `evaluations` and `seconds`.
@@ -317,7 +318,8 @@ class _RenderRun:
         # `state` stays the one at the end of the budget: the checkpoint keeps it, with the
         # totals, as the start of finishing (or, once done, with `finished` set)
         (self.totals, self.chunks, taken, taken_evaluations, seconds_taken), self.interrupted = _finish(
-            self.renderer, self.finisher, self.state, self.totals, self.key_run, self.chunks, self.chunk, self.progress,
+            self.renderer, self.finisher, self.state, self.totals, self.key_run, self.chunks,
+            min(self.chunk, _FINISHING_CALL), self.progress,
             self.lanes, self.step_cost,
         )  # fmt: skip
         self.finishing, self.finishing_evaluations = self.finishing + taken, self.finishing_evaluations + taken_evaluations
@@ -408,10 +410,12 @@ def _compile_chunk(renderer, target, key_run, state_shape, warm_key, warm_state)
 
 
 #: Finishing evaluates at most `max(_FINISHING_SLOTS, lanes // _FINISHING_SHARE)` points per
-#: step (at most `lanes`), and fewer, down to `_FINISHING_SMALLEST`, as tours close.
+#: step (at most `lanes`), and fewer, down to the renderer's `smallest_finishing_batch()`, as
+#: tours close.
 _FINISHING_SLOTS = 64
 _FINISHING_SHARE = 4
-_FINISHING_SMALLEST = 256
+#: Finishing steps per call at most: the batch is chosen again between calls, as tours close.
+_FINISHING_CALL = 64
 
 
 def finishing_slots(lanes: int) -> int:
@@ -419,9 +423,10 @@ def finishing_slots(lanes: int) -> int:
     return min(lanes, max(_FINISHING_SLOTS, lanes // _FINISHING_SHARE))
 
 
-def finishing_rungs(lanes: int) -> tuple[int, ...]:
+def finishing_rungs(lanes: int, smallest: int = 256) -> tuple[int, ...]:
     """The batch sizes of the finishing steps, largest first: `finishing_slots(lanes)`, then
-    quarters of it while they hold `_FINISHING_SMALLEST` points.
+    quarters of it while they hold `smallest` points (the renderer's
+    `smallest_finishing_batch()`).
 
     Why several: a step costs a fixed overhead plus a share per point, and most of the
     finishing time goes to the last few long tours. With thousands of tours open, the large
@@ -431,7 +436,7 @@ def finishing_rungs(lanes: int) -> tuple[int, ...]:
     `docs/benchmarks.md`).
     """
     rungs = [finishing_slots(lanes)]
-    while rungs[-1] // _FINISHING_SHARE >= _FINISHING_SMALLEST:
+    while rungs[-1] // _FINISHING_SHARE >= smallest:
         rungs.append(rungs[-1] // _FINISHING_SHARE)
     return tuple(rungs)
 
@@ -444,7 +449,7 @@ def _finisher(renderer, target, lanes, state_shape, warm_key, warm_state):
     key_spec = jax.eval_shape(lambda: warm_key)
     n_spec = jax.ShapeDtypeStruct((), jnp.int32)
     programs = []
-    for slots in finishing_rungs(lanes):
+    for slots in finishing_rungs(lanes, renderer.smallest_finishing_batch()):
         run = lambda k, s, n, slots=slots: renderer.finish(target, unrolled_keys(k), s, n, slots)  # noqa: E731
         finish = jax.jit(run).lower(key_spec, state_shape, n_spec).compile(compiler_options(renderer=True))
         jax.block_until_ready(finish(warm_key, warm_state, jnp.asarray(1, jnp.int32)))

@@ -194,6 +194,12 @@ class AbstractRenderer(eqx.Module):
         (host-side; 0 for renderers whose estimate is valid after any step)."""
         return 0
 
+    def smallest_finishing_batch(self) -> int:
+        """The smallest batch of points a finishing step evaluates (`render` compiles a program
+        for each quarter of its first batch down to this one, and picks the smallest that holds
+        the open tours): 256 by default."""
+        return 256
+
     def stop_starting(self, state):
         """The state with no new work starting (before `finish`); unchanged by default."""
         return state

@@ -459,6 +459,12 @@ class AbstractPSSRestore(AbstractRenderer):
         kernel proposes from the position alone, so a lane runs many events per batched call."""
         return self.finish_tours and self.kernel.proposes_from_position
 
+    def smallest_finishing_batch(self) -> int:
+        """256 for speculative finishing, whose trees fill a batch however few tours are open;
+        8 for plain steps of the open lanes, where every slot without an open lane is wasted
+        (the pool's last few H2MC Restore tours ran thousands of steps each in a batch of 512)."""
+        return 256 if self.speculates else 8
+
     def finishing_step(self, target, key: PRNGKeyArray, state: RestoreRenderState, slots: int) -> RestoreRenderState:
         """Advance the open tours (no new tour starts) by speculative steps (`speculates`): one
         batched evaluation of `slots` candidate events, each open lane a tree of `slots // open`

@@ -415,11 +415,12 @@ def test_driver_stops_on_the_evaluation_budget_and_reports_progress():
     assert odd.evaluations == 960 and odd.steps == 15
 
 
-@pytest.mark.parametrize("lanes", [512, 4096])
-def test_driver_finishes_every_open_tour_in_smaller_batches(lanes, monkeypatch):
+@pytest.mark.parametrize("lanes, speculative", [(512, True), (4096, True), (512, False)])
+def test_driver_finishes_every_open_tour_in_smaller_batches(lanes, speculative, monkeypatch):
     """Complete tours: after the budget no tour starts, the open ones run on (each finishing
     step evaluating a quarter of the lanes' worth of points, or less once few tours are
-    open) and every tour started is counted once, finished."""
+    open: down to 256 for speculative steps, to 8 for plain steps of the open lanes) and
+    every tour started is counted once, finished."""
     import restore.render._driver as driver
 
     used = []
@@ -431,7 +432,10 @@ def test_driver_finishes_every_open_tour_in_smaller_batches(lanes, monkeypatch):
 
     driver_rung = driver._rung
     monkeypatch.setattr(driver, "_rung", rung)
-    renderer = rr.MetropolisRestore(tour_length=8, n_bootstrap=1000)
+    if speculative:
+        renderer = rr.MetropolisRestore(tour_length=8, n_bootstrap=1000)
+    else:
+        renderer = rr.MALARestore(2e-4, tour_length=8, n_bootstrap=1000)
     updates: list[float] = []
     budget = renderer.init_cost(lanes) + 40 * lanes
     result = rr.render(TARGET, renderer, key=jax.random.key(3), evaluations=budget, num_lanes=lanes, chunk=10,
@@ -440,8 +444,8 @@ def test_driver_finishes_every_open_tour_in_smaller_batches(lanes, monkeypatch):
     assert isinstance(st, rr.RestoreStatistics) and result.steps == 40 and result.finishing_steps > 0
     assert st.tours_started == st.tours_completed == updates[-1] and len(updates) == 5
     # each call ran on the smallest batch holding its open tours (4096 lanes: 1024, then 256)
-    rungs = driver.finishing_rungs(lanes)
-    assert rungs == ((128,) if lanes == 512 else (1024, 256))
+    rungs = driver.finishing_rungs(lanes, renderer.smallest_finishing_batch())
+    assert rungs == {(512, True): (128,), (4096, True): (1024, 256), (512, False): (128, 32, 8)}[lanes, speculative]
     assert all(slots == min([r for r in rungs if r >= n] or [rungs[0]]) for n, slots in used)
     assert {slots for _, slots in used} == set(rungs)
     # finishing steps of the smaller batches cost less than a full step each
@@ -454,6 +458,7 @@ def test_finishing_batches_shrink_by_quarters():
 
     assert finishing_rungs(16384) == (4096, 1024, 256) and finishing_slots(16384) == 4096
     assert finishing_rungs(2048) == (512,) and finishing_rungs(100) == (64,) and finishing_rungs(32) == (32,)
+    assert finishing_rungs(2048, 8) == (512, 128, 32, 8) and finishing_rungs(100, 8) == (64, 16)
 
 
 @pytest.mark.parametrize("renderer", [rr.MetropolisRestore(n_bootstrap=1000), rr.MALARestore(2e-4, n_bootstrap=1000)])
