@@ -338,7 +338,7 @@ def markdown(comparison: RenderComparison) -> str:
         f"{len(c.scenes)} scene(s) at {c.resolution[0]}x{c.resolution[1]}, max depth {c.max_depth}; every method "
         f"renders for {c.seconds:g} s (compilation excluded), {c.realisations} independent realisation(s). Errors "
         "against a cached high-spp reference of Mitsuba's `path` integrator; relative MSE uses eps = 0.01. "
-        "Metropolis Restore then finishes the tours still open (its seconds include that), so the ratios "
+        "The Restore methods then finish the tours still open (their seconds include that), so the ratios "
         "compare relative MSE x seconds (inverse efficiency). "
         + (
             "The PSS methods run on multiplexed BDPT (small steps keep the depth and strategy: pssmlt is MMLT)."
