@@ -142,10 +142,18 @@ class TorusH2MC(AbstractLocalKernel):
             raise ValueError(f"TorusH2MC difference must lie in (0, 0.01], got {difference!r}")
         self.sigma, self.angle, self.difference = sigma, angle, difference
 
-    def gaussian(self, grad_fn: Callable[[Array], Array], u: Float[Array, " d"], grad: Float[Array, " d"]) -> H2MCGaussian:
-        """The proposal's Gaussian at `u` (gradient `grad`; `grad_fn` gives the gradient anywhere)."""
+    def gaussian(
+        self, grad_fn: Callable[[Array], Array], u: Float[Array, " d"], grad: Float[Array, " d"] | None = None
+    ) -> H2MCGaussian:
+        """The proposal's Gaussian at `u` (gradient `grad`, or, when not given, evaluated in
+        one batch with the Hessian's differences: one call of a tracer instead of two;
+        `grad_fn` gives the gradient anywhere)."""
         steps = self.difference * jnp.eye(u.shape[0], dtype=u.dtype)
-        columns = jax.vmap(grad_fn)(wrap(u + steps))  # row j: the gradient a step along axis j away
+        if grad is None:
+            rows = jax.vmap(grad_fn)(jnp.concatenate([u[None], wrap(u + steps)]))
+            grad, columns = rows[0], rows[1:]
+        else:
+            columns = jax.vmap(grad_fn)(wrap(u + steps))  # row j: the gradient a step along axis j away
         hessian = (columns - grad).T / self.difference
         return h2mc_gaussian(grad, hessian, self.sigma, self.angle)
 
@@ -160,7 +168,7 @@ class TorusH2MC(AbstractLocalKernel):
         u = point.position
         forward = self.gaussian(grad_fn, u, gradient_of(point))
         candidate = wrap(u + forward.sample(key))
-        backward = self.gaussian(grad_fn, candidate, grad_fn(candidate))
+        backward = self.gaussian(grad_fn, candidate)
         log_forward = forward.log_density(forward.mean_move() + _centred(candidate - u - forward.mean_move()))
         log_backward = backward.log_density(backward.mean_move() + _centred(u - candidate - backward.mean_move()))
         return candidate, log_backward - log_forward
