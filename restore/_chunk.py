@@ -7,9 +7,9 @@ length, and, when finishing open tours, only while some tour is open. `restore.s
 chunks and narrow finishing batch (`_run_loop`) and a renderer's chunks and finishing
 (`restore.render`) all run on `run_steps`; what differs is their step and their carry.
 
-After the budget, the open tours of both are finished by `run_open_lanes` (a narrow batch
-of slots, each holding an open lane until its tour ends), except Metropolis Restore's
-renders, which run their open tours by speculative steps (`restore.speculative_steps`).
+After the budget, `restore.sample` finishes its open tours by `run_open_lanes` (a narrow
+batch of slots, each holding an open lane until its tour ends); Restore renders run theirs
+by speculative steps (`restore.speculative_steps`) on `run_steps`.
 """
 
 from __future__ import annotations

@@ -23,6 +23,12 @@ path for `a` near 1 and the reject path (independent candidates from the current
 for `a` near 0. A call then advances a lane by about `log2(d) / H(a)` events (`H` the
 binary entropy) instead of one.
 
+A kernel whose candidate needs more than the position (MALA, H2MC: the gradient at the
+current state) cannot propose from a candidate before it is evaluated, but a rejected
+move leaves the lane where it was: its tree is the reject path alone (`reject_chains`),
+`d` independent candidates from the current state, and a call advances the lane by
+about `1 / a` events (at most `d`), one where its moves are mostly accepted.
+
 Speculative steps never start a tour: a killed lane stops (`active` false) at its kill
 point. They finish tours; they do not replace `step` while tours still start.
 """
@@ -111,16 +117,21 @@ def speculation_trees(size: int, buckets: int = ACCEPTANCE_BUCKETS) -> tuple[np.
 
 
 def check_speculative(sampler: JumpRestore) -> None:
-    """Raise a `ValueError` unless `speculative_steps` can run `sampler`."""
+    """Raise a `ValueError` unless `speculative_steps` can run `sampler` (a one-phase
+    `JumpRestore`; any local kernel)."""
     if not isinstance(sampler, JumpRestore):
         raise ValueError(f"speculative steps need a JumpRestore sampler, got {type(sampler).__name__}")
     if sampler.num_phases != 1:
         raise ValueError("speculative steps need a sampler with one phase")
-    if not sampler.local.proposes_from_position or sampler.uses_gradient:
-        raise ValueError(
-            f"speculative steps need a local kernel whose candidate depends on the position alone "
-            f"(proposes_from_position), not {type(sampler.local).__name__}"
-        )
+
+
+def reject_chains(size: int) -> tuple[np.ndarray, ...]:
+    """The trees of a kernel whose candidate needs more than the position (a gradient): the
+    reject path alone, node `k` the event after `k` rejections, every candidate proposed from
+    the current state. The same layout as `speculation_trees`, one bucket."""
+    k = np.arange(size, dtype=np.int32)[None]
+    child_rejected = np.where(k + 1 < size, k + 1, size).astype(np.int32)
+    return k - 1, np.zeros_like(k), k, np.full_like(k, size), child_rejected
 
 
 def _rows(mask: Array, x: Array) -> Array:
@@ -140,11 +151,13 @@ def speculative_steps(
 
     The slots are shared out evenly: with `n` open lanes each gets a tree of
     `d = max(1, slots // n)` slots (lanes beyond `slots` wait for a later call), shaped
-    for the lane's predicted `acceptance` probability (a guess: any value is exact).
+    for the lane's predicted `acceptance` probability (a guess: any value is exact), or
+    the reject path alone for a kernel that needs the gradient (module docstring).
     """
     check_speculative(sampler)
     log_rates = sampler.calibrated_log_rates()
     dynamics = cast(AbstractJumpDynamics, sampler.dynamics[0])
+    from_position = sampler.local.proposes_from_position and not sampler.uses_gradient
     n_lanes = active.shape[0]
     dtype = states.logdensity.dtype
     log_r = jnp.log(jnp.asarray(dynamics.rate, dtype))
@@ -163,9 +176,12 @@ def speculative_steps(
     held = jax.tree.map(lambda x: x[lane], states)  # each slot's lane's current state
 
     # each slot's node in its lane's tree
-    tables = [jnp.asarray(t) for t in speculation_trees(slots)]
-    predicted = jnp.broadcast_to(jnp.asarray(acceptance, jnp.float32), (n_lanes,))[lane]
-    bucket = jnp.clip(jnp.floor(predicted * ACCEPTANCE_BUCKETS), 0, ACCEPTANCE_BUCKETS - 1).astype(jnp.int32)
+    if from_position:
+        tables = [jnp.asarray(t) for t in speculation_trees(slots)]
+        predicted = jnp.broadcast_to(jnp.asarray(acceptance, jnp.float32), (n_lanes,))[lane]
+        bucket = jnp.clip(jnp.floor(predicted * ACCEPTANCE_BUCKETS), 0, ACCEPTANCE_BUCKETS - 1).astype(jnp.int32)
+    else:
+        tables, bucket = [jnp.asarray(t) for t in reject_chains(slots)], jnp.zeros(slots, jnp.int32)
     parent_node, on_accept, depth, child_accept, child_reject = (t[bucket, node] for t in tables)
     start = j - node
     parent = jnp.where(parent_node >= 0, start + parent_node, j)
@@ -183,9 +199,15 @@ def speculative_steps(
             propose_keys, positions
         )
 
-    candidates, proposal_aux = propose(held.position)
     source = jnp.full(slots, -1, jnp.int32)
     position = held.position
+    if not from_position:  # every node proposes from the current state, with its gradient
+        own_point = Point(held.position, held.logdensity, held.logdensity_grad, held.aux)
+        candidates, proposal_aux = jax.vmap(lambda k, p: dynamics.propose(k, p, sampler.log_value))(
+            propose_keys, own_point
+        )
+    else:
+        candidates, proposal_aux = propose(held.position)
 
     def level_body(t, carry):
         position, source, candidates, proposal_aux = carry
@@ -197,11 +219,13 @@ def speculative_steps(
         pick = lambda a, b: jnp.where(_rows(here, a), a, b)  # noqa: E731
         return position, source, pick(new_candidates, candidates), jax.tree.map(pick, new_aux, proposal_aux)
 
-    position, source, candidates, proposal_aux = jax.lax.fori_loop(
-        1, levels, level_body, (position, source, candidates, proposal_aux)
-    )
+    if from_position:
+        position, source, candidates, proposal_aux = jax.lax.fori_loop(
+            1, levels, level_body, (position, source, candidates, proposal_aux)
+        )
     candidates = candidates.astype(states.position.dtype)
-    evaluated, invalid = jax.vmap(lambda y: evaluate(sampler.logdensity, y, False, sampler.has_aux))(candidates)
+    with_grad = sampler.uses_gradient
+    evaluated, invalid = jax.vmap(lambda y: evaluate(sampler.logdensity, y, with_grad, sampler.has_aux))(candidates)
     _, invalid, _, candidate_log_kill, _ = jax.vmap(lambda p, bad: sampler.kill_terms(0, p, bad, log_rates))(
         evaluated, invalid
     )
@@ -213,7 +237,7 @@ def speculative_steps(
     current = Point(
         position.astype(candidates.dtype),  # the held positions the proposals started from
         held_value(held.logdensity, evaluated.logdensity),
-        None,
+        None if not with_grad else held_value(held.logdensity_grad, evaluated.grad),
         jax.tree.map(held_value, held.aux, evaluated.aux),
     )
     current_log_kill = held_value(held.log_kill_rate, candidate_log_kill)
@@ -242,6 +266,8 @@ def speculative_steps(
         log_kill_rate=put(states.log_kill_rate, end_log_kill),
         aux=jax.tree.map(put, states.aux, end.aux),
     )
+    if with_grad:
+        new_states = new_states._replace(logdensity_grad=put(states.logdensity_grad, end.grad))
     new_active = active.at[target].set(~killed, mode="drop")
 
     info = StepInfo(

@@ -82,7 +82,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
-from .._chunk import run_open_lanes, run_steps
+from .._chunk import run_steps
 from .._exceedances import Exceedances, init_exceedances, largest, offer
 from .._jump_restore import JumpRestore
 from .._pareto import pareto_k
@@ -213,12 +213,11 @@ def _add_events(tally, target, info, counted, log_kill_rate, moves, starting, ev
     )
 
 
-def _end_tours(state, duration: Float[Array, " N"], ended: Bool[Array, " N"], lane: Array | None = None) -> dict[str, Any]:
+def _end_tours(state, duration: Float[Array, " N"], ended: Bool[Array, " N"]) -> dict[str, Any]:
     """The fields of `state` after the counted tours that `ended` (of `duration`, their
     events up to the last one included) are offered to the buffer of the longest tours
-    (`lane`: the lanes' indices, default `0 ... N - 1`) and added to the duration sums; their
-    lanes' running durations restart at 0."""
-    lane = jnp.arange(duration.shape[0], dtype=jnp.int32) if lane is None else lane
+    and added to the duration sums; their lanes' running durations restart at 0."""
+    lane = jnp.arange(duration.shape[0], dtype=jnp.int32)
     batch = max(32, duration.shape[0] // 4)
     tails = offer(state.tails, duration[:, None], lane, ended, 0, batch)
     finished = jnp.where(ended, duration, 0.0)
@@ -433,10 +432,7 @@ class AbstractPSSRestore(AbstractRenderer):
             )
 
     def step(self, target, key: PRNGKeyArray, state: RestoreRenderState) -> RestoreRenderState:
-        return self._step(target, key, state)
-
-    def _step(self, target, key: PRNGKeyArray, state: RestoreRenderState, lane: Array | None = None) -> RestoreRenderState:
-        """One step of every lane of `state` (`lane`: their indices in the render, default all in order)."""
+        """One step of every lane of `state`."""
         sampler = self.sampler(target, state.params)
         n, moves, counted = state.tour_moves.shape[0], state.tour_moves, state.in_tour
         lanes, info = sampler.step_lanes(lane_keys(key, n), state.lanes)
@@ -451,19 +447,21 @@ class AbstractPSSRestore(AbstractRenderer):
         state = state._replace(
             lanes=lanes, tour_moves=tour_moves, tour_accepted=tour_accepted, in_tour=in_tour, tally=tally
         )
-        return state._replace(**_end_tours(state, duration, killed, lane))
+        return state._replace(**_end_tours(state, duration, killed))
 
     @property
     def speculates(self) -> bool:
-        """Open tours are finished by speculative steps (`restore.speculative_steps`): the local
-        kernel proposes from the position alone, so a lane runs many events per batched call."""
-        return self.finish_tours and self.kernel.proposes_from_position
+        """Open tours are finished by speculative steps (`restore.speculative_steps`): a lane
+        runs many events per batched call, along a tree shaped by its acceptance where the
+        local kernel proposes from the position alone, along the reject path where its
+        candidate needs the gradient (MALA, H2MC)."""
+        return self.finish_tours
 
     def smallest_finishing_batch(self) -> int:
-        """256 for speculative finishing, whose trees fill a batch however few tours are open;
-        8 for plain steps of the open lanes, where every slot without an open lane is wasted
-        (the pool's last few H2MC Restore tours ran thousands of steps each in a batch of 512)."""
-        return 256 if self.speculates else 8
+        """256 where trees fill a batch however few tours are open (Metropolis moves); 8 where
+        a lane speculates along the reject path alone (MALA, H2MC), whose events per call
+        are about one over the acceptance rate, however long the chain."""
+        return 256 if self.kernel.proposes_from_position else 8
 
     def finishing_step(self, target, key: PRNGKeyArray, state: RestoreRenderState, slots: int) -> RestoreRenderState:
         """Advance the open tours (no new tour starts) by speculative steps (`speculates`): one
@@ -491,29 +489,6 @@ class AbstractPSSRestore(AbstractRenderer):
         )
         return state._replace(**_end_tours(state, duration, ended))
 
-    def _finish_open_lanes(self, target, key: PRNGKeyArray, state: RestoreRenderState, max_steps, slots: int):
-        """Plain steps of the open lanes, `slots` at a time (`restore._chunk.run_open_lanes`, the
-        core's finishing procedure): a slot holds an open lane until its tour ends, then takes
-        the next. Step `i` of the batch draws with `fold_in(key, i)`."""
-
-        def step(slot, shared, slot_lane, _, live, i):
-            tally, tails = shared
-            part = state._replace(
-                lanes=slot[0], tour_moves=slot[1], tour_accepted=slot[2], tour_duration=slot[3], in_tour=slot[4] & live,
-                tally=tally, tails=tails,
-            )  # fmt: skip
-            after = self._step(target, jax.random.fold_in(key, i), part, slot_lane)
-            lanes = (after.lanes, after.tour_moves, after.tour_accepted, after.tour_duration, after.in_tour)
-            return lanes, (after.tally, after.tails), live & ~after.in_tour
-
-        lanes = (state.lanes, state.tour_moves, state.tour_accepted, state.tour_duration, state.in_tour)
-        taken = jnp.zeros(state.in_tour.shape, jnp.int32)
-        limit = jnp.iinfo(jnp.int32).max
-        lanes, (tally, tails), _, steps = run_open_lanes(step, lanes, (state.tally, state.tails), state.in_tour, taken, limit, max_steps, slots)
-        moves, accepted, duration, in_tour = lanes[1:]
-        state = state._replace(lanes=lanes[0], tour_moves=moves, tour_accepted=accepted, tour_duration=duration, in_tour=in_tour)
-        return state._replace(tally=tally, tails=tails), steps
-
     def open_tours(self, state: RestoreRenderState) -> int:
         """Lanes whose counted tour is still running (host-side): `finish` runs them to their end."""
         return int(jnp.sum(state.in_tour)) if self.finish_tours else 0
@@ -525,18 +500,14 @@ class AbstractPSSRestore(AbstractRenderer):
     def finish(self, target, key: PRNGKeyArray, state: RestoreRenderState, max_steps=None, slots=None):
         """With complete tours: start no new tour and run every open tour to its end, each
         step one batched evaluation of `slots` points (default: the lanes) shared among the
-        open tours: speculative steps (`finishing_step`, when the kernel `speculates`), else
-        plain steps of the open lanes `slots` at a time, by the core's finishing procedure
-        (`restore._chunk.run_open_lanes`); at most `max_steps` steps if given. Returns the
-        state and the steps taken."""
+        open tours by speculative steps (`finishing_step`); at most `max_steps` steps if
+        given. Returns the state and the steps taken."""
         if not self.finish_tours:
             return state, jnp.zeros((), jnp.int32)
         lanes = state.tour_moves.shape[0]
         slots = lanes if slots is None else min(int(slots), lanes)
         limit = jnp.iinfo(jnp.int32).max if max_steps is None else max_steps
         state = self.stop_starting(state)
-        if not self.speculates:
-            return self._finish_open_lanes(target, key, state, limit, slots)
         step = lambda i, s: self.finishing_step(target, jax.random.fold_in(key, i), s, slots)  # noqa: E731
         return run_steps(step, state, limit, lambda s: jnp.any(s.in_tour))
 

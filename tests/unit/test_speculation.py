@@ -80,9 +80,18 @@ def z_scores(sums):
     return (mean - Z * MOMENTS) / se
 
 
+MALA_SAMPLER = restore.JumpRestore(logp, MALA(0.8), Gaussian(jnp.zeros(1), 4.0), log_rate=LOG_RATE)
+
+
 @pytest.fixture(scope="module")
 def finished():
     return [finish_tours(jax.random.key(seed), acceptance=a) for seed, a in enumerate([0.5, 0.1, 0.9])]
+
+
+@pytest.fixture(scope="module")
+def finished_mala():
+    """MALA's candidate needs the gradient: its lanes speculate along the reject path alone."""
+    return finish_tours(jax.random.key(5), MALA_SAMPLER, lanes=8192, slots=16384)
 
 
 def test_speculative_tours_have_the_regenerative_integral(finished):
@@ -91,6 +100,12 @@ def test_speculative_tours_have_the_regenerative_integral(finished):
         assert np.all(np.abs(z_scores(sums)) < 4), z_scores(sums)
     pooled = np.concatenate([np.asarray(s) for s, *_ in finished])
     assert np.all(np.abs(z_scores(pooled)) < 4)
+
+
+def test_speculative_mala_tours_have_the_regenerative_integral(finished_mala):
+    sums, _, (calls, events), active = finished_mala
+    assert not bool(jnp.any(active))
+    assert np.all(np.abs(z_scores(sums)) < 4), z_scores(sums)
 
 
 def test_replaying_events_after_a_rejection_fails(finished):
@@ -111,8 +126,15 @@ def test_a_call_advances_a_lane_by_many_events(scale, guess, at_least):
     assert int(events) > at_least * int(calls)
 
 
-def test_speculation_needs_a_position_only_proposal():
-    mala = restore.JumpRestore(logp, MALA(0.2), Gaussian(jnp.zeros(1), 4.0), log_rate=LOG_RATE)
-    states = jax.vmap(mala.init)(jax.random.split(jax.random.key(0), 4))
-    with pytest.raises(ValueError, match="proposes_from_position"):
-        restore.speculative_steps(mala, jax.random.key(1), states, jnp.ones(4, bool), 8)
+@pytest.mark.parametrize(("step", "at_least", "at_most"), [(5.0, 3, 64), (0.05, 1, 1.2)])
+def test_a_gradient_kernel_speculates_along_the_reject_path(step, at_least, at_most):
+    """MALA's candidates after an acceptance would need the accepted point's gradient, so a
+    lane's tree is the reject path alone: many events per call where most moves are rejected
+    (large steps), about one where most are accepted (small steps); no event follows an
+    accepted candidate within a call."""
+    long_tours = restore.JumpRestore(logp, MALA(step), Gaussian(jnp.zeros(1), 4.0), log_rate=float(np.log(Z / 3000)))
+    states = jax.vmap(long_tours.init)(jax.random.split(jax.random.key(0), 1))
+    run = restore.speculative_steps(long_tours, jax.random.key(1), states, jnp.ones(1, bool), 64)
+    assert not bool(jnp.any(run.accepted_branch)) and bool(jnp.all(run.parent[1:] == jnp.arange(63)))
+    _, _, (calls, events), _ = finish_tours(jax.random.key(7), long_tours, lanes=1, slots=64)
+    assert at_least * int(calls) < int(events) <= at_most * int(calls)
