@@ -56,7 +56,7 @@ class _Slots(NamedTuple):
     """The loop of `run_open_lanes`."""
 
     lanes: Any  # every lane's part of the carry (up to date for the lanes not in a slot)
-    shared: Any  # the carry's part that all lanes add to (histograms, tail buffers, films)
+    shared: Any  # the carry's part that all lanes add to (histograms, tail buffers)
     taken: Array  # steps each lane has taken (up to date for the lanes not in a slot)
     slot_lane: Array  # the lane each slot holds
     slot_lanes: Any  # the slots' lanes' parts of the carry
@@ -75,8 +75,8 @@ def run_open_lanes(
     iterations: ArrayLike,
     width: int,
 ) -> tuple[Any, Any, Array, Int[Array, ""]]:
-    """Step the `open_` lanes, `width` at a time, until each one's work ends: the one finishing
-    procedure of sampling and rendering (the open tours after the budget).
+    """Step the `open_` lanes, `width` at a time, until each one's work ends: how
+    `restore.sample` finishes its open tours after the budget.
 
     A batch of `width` slots each holds an open lane (in lane order); every iteration steps
     the batch, and a lane whose work ended (or that has taken `limit` steps) goes back to its

@@ -201,13 +201,6 @@ def speculative_steps(
 
     source = jnp.full(slots, -1, jnp.int32)
     position = held.position
-    if not from_position:  # every node proposes from the current state, with its gradient
-        own_point = Point(held.position, held.logdensity, held.logdensity_grad, held.aux)
-        candidates, proposal_aux = jax.vmap(lambda k, p: dynamics.propose(k, p, sampler.log_value))(
-            propose_keys, own_point
-        )
-    else:
-        candidates, proposal_aux = propose(held.position)
 
     def level_body(t, carry):
         position, source, candidates, proposal_aux = carry
@@ -220,8 +213,14 @@ def speculative_steps(
         return position, source, pick(new_candidates, candidates), jax.tree.map(pick, new_aux, proposal_aux)
 
     if from_position:
+        candidates, proposal_aux = propose(held.position)
         position, source, candidates, proposal_aux = jax.lax.fori_loop(
             1, levels, level_body, (position, source, candidates, proposal_aux)
+        )
+    else:  # every node proposes from the current state, with its gradient
+        own_point = Point(held.position, held.logdensity, held.logdensity_grad, held.aux)
+        candidates, proposal_aux = jax.vmap(lambda k, p: dynamics.propose(k, p, sampler.log_value))(
+            propose_keys, own_point
         )
     candidates = candidates.astype(states.position.dtype)
     with_grad = sampler.uses_gradient

@@ -466,7 +466,7 @@ class AbstractPSSRestore(AbstractRenderer):
     def finishing_step(self, target, key: PRNGKeyArray, state: RestoreRenderState, slots: int) -> RestoreRenderState:
         """Advance the open tours (no new tour starts) by speculative steps (`speculates`): one
         batched evaluation of `slots` candidate events, each open lane a tree of `slots // open`
-        of them, shaped by its tour's acceptance so far."""
+        of them, shaped by its tour's acceptance so far (the reject path for MALA and H2MC)."""
         sampler = self.sampler(target, state.params)
         guess = (state.tour_accepted + 1.0) / (state.tour_moves + 2.0)  # this tour's acceptance so far
         run = speculative_steps(sampler, key, state.lanes, state.in_tour, slots, guess)
@@ -507,9 +507,8 @@ class AbstractPSSRestore(AbstractRenderer):
         lanes = state.tour_moves.shape[0]
         slots = lanes if slots is None else min(int(slots), lanes)
         limit = jnp.iinfo(jnp.int32).max if max_steps is None else max_steps
-        state = self.stop_starting(state)
         step = lambda i, s: self.finishing_step(target, jax.random.fold_in(key, i), s, slots)  # noqa: E731
-        return run_steps(step, state, limit, lambda s: jnp.any(s.in_tour))
+        return run_steps(step, self.stop_starting(state), limit, lambda s: jnp.any(s.in_tour))
 
     def scale(self, target, params: RestoreParams, tally: RestoreTally):
         """`W H c / N` (complete tours; `N` = tours started = lanes + kills while starting)
