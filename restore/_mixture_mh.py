@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import ClassVar, NamedTuple
+from typing import Any, ClassVar, NamedTuple
 
 import equinox as eqx
 import jax
@@ -11,7 +11,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float, PRNGKeyArray
 
 from ._parts import check_parts
-from ._point import Point, evaluate
+from ._point import Point
 from ._sampler import AbstractSampler, StepInfo
 from ._sparse_draws import draw_slots, draw_where
 from ._validation import check_point
@@ -21,11 +21,13 @@ from .regeneration import AbstractRegeneration
 
 
 class MixtureMHState(NamedTuple):
-    """State of one MH lane: the point (the target's log density and, for gradient kernels, its gradient)."""
+    """State of one MH lane: the point (the target's log density and, for gradient kernels, its
+    gradient; the local kernel's `geometry` where it keeps one)."""
 
     position: Float[Array, " d"]
     logdensity: Float[Array, ""]
     logdensity_grad: Float[Array, " d"] | None
+    geometry: Any = None
 
 
 class _LargeStep(NamedTuple):
@@ -99,8 +101,8 @@ class MixtureMH(AbstractSampler):
         else:
             position = check_point(position, self.dim, "position", finite=True)
         position = position.astype(self.dtype)
-        point, _ = evaluate(self.logdensity, position, self.local.uses_gradient)
-        return MixtureMHState(point.position, point.logdensity, point.grad)
+        point, _ = self.local.evaluate_point(self.logdensity, position)
+        return MixtureMHState(point.position, point.logdensity, point.grad, point.geometry)
 
     def step_lanes(self, keys: PRNGKeyArray, states: MixtureMHState) -> tuple[MixtureMHState, StepInfo]:
         """`vmap(step)`, with the large-step draw and densities computed only for the lanes that take a large step."""
@@ -145,12 +147,12 @@ class MixtureMH(AbstractSampler):
         if large is None:
             large = self._large(k_choice, state)
 
-        point = Point(state.position, state.logdensity, state.logdensity_grad)
+        point = Point(state.position, state.logdensity, state.logdensity_grad, None, state.geometry)
         candidate, aux = self.local.propose(k_propose, point, self.logdensity)
         candidate = candidate.astype(state.position.dtype)
         if prepared is None:
             prepared = self._large_step(k_regen, state.position)
-        evaluated, invalid = evaluate(self.logdensity, jnp.where(large, prepared.fresh, candidate), self.local.uses_gradient)
+        evaluated, invalid = self.local.evaluate_point(self.logdensity, jnp.where(large, prepared.fresh, candidate))
 
         local_point, local_info = self.local.accept(k_accept, point, evaluated, aux)
         log_ratio = evaluated.logdensity - state.logdensity + prepared.log_u_current - prepared.log_u_fresh
@@ -175,7 +177,7 @@ class MixtureMH(AbstractSampler):
             negative_rate=no,
             bound_ratio=jnp.zeros((), dtype),
         )
-        return MixtureMHState(new_point.position, new_point.logdensity, new_point.grad), info
+        return MixtureMHState(new_point.position, new_point.logdensity, new_point.grad, new_point.geometry), info
 
 
 def _pack(step: _LargeStep) -> Array:

@@ -16,13 +16,16 @@ class Point(NamedTuple):
     `logdensity` is `-inf` for a point of zero density, and also for a point where the
     user's log density returned NaN or `+inf` (see `evaluate`). `grad` is `None` when
     no kernel needs it. `aux` is what a log density built with `has_aux` returns beside
-    its value (e.g. a light path's colour), `None` otherwise.
+    its value (e.g. a light path's colour), `None` otherwise. `geometry` is what a local
+    kernel derives at the point besides the gradient and keeps with it, so that it is
+    computed once per point (`TorusH2MC`: its proposal's Gaussian), `None` otherwise.
     """
 
     position: Float[Array, " d"]
     logdensity: Float[Array, ""]
     grad: Float[Array, " d"] | None
     aux: Any = None
+    geometry: Any = None
 
 
 def evaluate(

@@ -49,6 +49,7 @@ class RestoreState(NamedTuple):
         pending: a diffusion tour was just killed at `position`; the next step draws the
             start of the next tour (always false for jump dynamics).
         aux: the log density's extra output at `position` (`has_aux`), else `None`.
+        geometry: what the local kernel keeps at `position` (`Point.geometry`), else `None`.
     """
 
     position: Float[Array, " d"]
@@ -60,6 +61,7 @@ class RestoreState(NamedTuple):
     tour: Int[Array, ""]
     pending: Bool[Array, ""]
     aux: Any = None
+    geometry: Any = None
 
 
 class _JumpKeys(NamedTuple):
@@ -181,6 +183,11 @@ class AbstractRestore(AbstractSampler):
             raise ValueError(f"the transfer kernels live in different dimensions {sorted(dims)}")
         dim = dims.pop()
         check_logdensity(logdensity, dim, with_grad=any(d.uses_gradient for d in dynamics), has_aux=has_aux)
+        if len({id(d) for d in dynamics if d.keeps_geometry}) > 1:
+            raise ValueError(
+                "two phases' dynamics keep their own geometry at a point (as H2MC keeps its Gaussian); a state "
+                "holds one: give such dynamics to one phase, or the same object to every phase"
+            )
         for d, t in zip(dynamics, transfers):
             d.check_dim(dim)
             if not d.is_invariant and not t.is_independent:
@@ -319,6 +326,14 @@ class AbstractRestore(AbstractSampler):
     def uses_gradient(self) -> bool:
         return any(d.uses_gradient for d in self.dynamics)
 
+    def evaluate_point(self, position: Array) -> tuple[Point, Array]:
+        """The point at `position` evaluated with all the dynamics need there (the gradient, or
+        the geometry a kernel keeps: `Point.geometry`), and whether the evaluation was invalid."""
+        for d in self.dynamics:
+            if d.keeps_geometry:  # evaluates the gradient too, as the other phases may need
+                return d.evaluate_point(self.logdensity, position, self.has_aux)
+        return evaluate(self.logdensity, position, self.uses_gradient, self.has_aux)
+
     def calibrate(self, key: PRNGKeyArray) -> tuple[AbstractRestore, PilotEstimate | None]:
         """The sampler with `log_rate` set from `tour_length` by a pilot estimate of `Z`, and the pilot.
 
@@ -407,12 +422,13 @@ class AbstractRestore(AbstractSampler):
         else:
             position = check_point(position, self.dim, "position", finite=True)
         position = position.astype(self.dtype)
-        point, invalid = evaluate(self.logdensity, position, self.uses_gradient, self.has_aux)
+        point, invalid = self.evaluate_point(position)
         point, _, _, log_kill, adjoint = self.kill_terms(phase, point, invalid, log_rates)
         zero = jnp.zeros((), jnp.int32)
         return RestoreState(
-            point.position, point.logdensity, point.grad, log_kill, adjoint, phase, zero, jnp.zeros((), bool), point.aux
-        )
+            point.position, point.logdensity, point.grad, log_kill, adjoint, phase, zero, jnp.zeros((), bool), point.aux,
+            point.geometry,
+        )  # fmt: skip
 
     def step(self, key: PRNGKeyArray, state: RestoreState) -> tuple[RestoreState, StepInfo]:
         """One event of the lane: a local move or a kill (jump dynamics), or one thinning candidate (diffusions)."""
@@ -546,13 +562,13 @@ class AbstractRestore(AbstractSampler):
         if killed is None:
             killed = event.killed
 
-        point = Point(state.position, state.logdensity, state.logdensity_grad, state.aux)
+        point = Point(state.position, state.logdensity, state.logdensity_grad, state.aux, state.geometry)
         candidate, aux = dynamics.propose(keys.propose, point, self.log_value)
         candidate = candidate.astype(state.position.dtype)
         next_phase = self._next_phase(state.tour + 1)
         if fresh is None:
             fresh = self._regenerate(next_phase, keys.regenerate, state.position)
-        evaluated, invalid = evaluate(self.logdensity, jnp.where(killed, fresh, candidate), self.uses_gradient, self.has_aux)
+        evaluated, invalid = self.evaluate_point(jnp.where(killed, fresh, candidate))
         moved, local_info = dynamics.accept(keys.accept, point, evaluated, aux)
         new_point = jax.tree.map(lambda a, b: jnp.where(killed, a, b), evaluated, moved)
         new_phase = jnp.where(killed, next_phase, state.phase) if self.num_phases > 1 else state.phase
@@ -579,6 +595,7 @@ class AbstractRestore(AbstractSampler):
             state.tour + killed.astype(jnp.int32),
             state.pending,
             new_point.aux,
+            new_point.geometry,
         )
         log_weight = jnp.where(killed, new_point.logdensity - terms.log_regeneration, -jnp.inf)
         info = StepInfo(
@@ -607,7 +624,7 @@ class AbstractRestore(AbstractSampler):
         pending = state.pending
         start = self.transfers[k].sample(k_move, state.position)
         moved = dynamics.advance(k_move, state.position, gap, self.log_value).astype(dtype)
-        evaluated, invalid = evaluate(self.logdensity, jnp.where(pending, start.astype(dtype), moved), self.uses_gradient, self.has_aux)
+        evaluated, invalid = self.evaluate_point(jnp.where(pending, start.astype(dtype), moved))
         evaluated, invalid, log_q, log_kill, adjoint = self.kill_terms(state.phase, evaluated, invalid, log_rates)
 
         log_gamma, negative = log_total_kill_rate(log_kill, adjoint)
@@ -624,6 +641,7 @@ class AbstractRestore(AbstractSampler):
             state.tour + killed.astype(jnp.int32),
             killed,
             evaluated.aux,
+            evaluated.geometry,
         )
         log_weight = jnp.where(pending, evaluated.logdensity - log_q, -jnp.inf)
         zero = jnp.zeros((), dtype)
@@ -653,7 +671,7 @@ class AbstractRestore(AbstractSampler):
         """
         log_rates = self.calibrated_log_rates()
         position = check_point(position, self.dim, "position", finite=True).astype(self.dtype)
-        point, invalid = evaluate(self.logdensity, position, self.uses_gradient, self.has_aux)
+        point, invalid = self.evaluate_point(position)
         phase = jnp.asarray(phase, jnp.int32)
         _, _, _, log_kill, adjoint = self.kill_terms(phase, point, invalid, log_rates)
         return adjoint + jnp.exp(log_kill)

@@ -45,7 +45,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
 from ._jump_restore import JumpRestore
-from ._point import Point, evaluate
+from ._point import Point
 from ._random import log_uniform
 from ._rate import jump_event
 from ._restore import RestoreState
@@ -218,13 +218,13 @@ def speculative_steps(
             1, levels, level_body, (position, source, candidates, proposal_aux)
         )
     else:  # every node proposes from the current state, with its gradient
-        own_point = Point(held.position, held.logdensity, held.logdensity_grad, held.aux)
+        own_point = Point(held.position, held.logdensity, held.logdensity_grad, held.aux, held.geometry)
         candidates, proposal_aux = jax.vmap(lambda k, p: dynamics.propose(k, p, sampler.log_value))(
             propose_keys, own_point
         )
     candidates = candidates.astype(states.position.dtype)
     with_grad = sampler.uses_gradient
-    evaluated, invalid = jax.vmap(lambda y: evaluate(sampler.logdensity, y, with_grad, sampler.has_aux))(candidates)
+    evaluated, invalid = jax.vmap(sampler.evaluate_point)(candidates)
     _, invalid, _, candidate_log_kill, _ = jax.vmap(lambda p, bad: sampler.kill_terms(0, p, bad, log_rates))(
         evaluated, invalid
     )
@@ -238,6 +238,7 @@ def speculative_steps(
         held_value(held.logdensity, evaluated.logdensity),
         None if not with_grad else held_value(held.logdensity_grad, evaluated.grad),
         jax.tree.map(held_value, held.aux, evaluated.aux),
+        jax.tree.map(held_value, held.geometry, evaluated.geometry),
     )
     current_log_kill = held_value(held.log_kill_rate, candidate_log_kill)
 
@@ -264,6 +265,7 @@ def speculative_steps(
         logdensity=put(states.logdensity, end.logdensity),
         log_kill_rate=put(states.log_kill_rate, end_log_kill),
         aux=jax.tree.map(put, states.aux, end.aux),
+        geometry=jax.tree.map(put, states.geometry, end.geometry),
     )
     if with_grad:
         new_states = new_states._replace(logdensity_grad=put(states.logdensity_grad, end.grad))

@@ -8,9 +8,9 @@ from typing import Any, ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
-from jaxtyping import Array, Float, PRNGKeyArray
+from jaxtyping import Array, Bool, Float, PRNGKeyArray
 
-from .._point import Point
+from .._point import Point, evaluate
 from .._validation import check_positive
 from ..local import AbstractLocalKernel, LocalInfo
 
@@ -27,6 +27,15 @@ class AbstractDynamics(eqx.Module):
 
     uses_gradient: ClassVar[bool] = False
     is_invariant: ClassVar[bool] = False
+    keeps_geometry: ClassVar[bool] = False
+
+    def evaluate_point(
+        self, logdensity_fn: Callable[[Array], Any], position: Array, has_aux: bool = False
+    ) -> tuple[Point, Bool[Array, ""]]:
+        """The point at `position`, evaluated with what these dynamics need there (the gradient
+        where they use it; a local kernel's `geometry` where it keeps one), and whether the
+        evaluation was invalid."""
+        return evaluate(logdensity_fn, position, self.uses_gradient, has_aux)
 
     @abc.abstractmethod
     def adjoint_ratio(self, logdensity_fn: Callable[[Array], Array], point: Point) -> Float[Array, ""]:
@@ -110,6 +119,13 @@ class Jump(AbstractJumpDynamics):
     @property
     def uses_gradient(self) -> bool:  # type: ignore[override]  # the ClassVar is never set, so a property may replace it
         return self.kernel.uses_gradient
+
+    @property
+    def keeps_geometry(self) -> bool:  # type: ignore[override]  # the ClassVar is never set, so a property may replace it
+        return self.kernel.keeps_geometry
+
+    def evaluate_point(self, logdensity_fn, position, has_aux=False):
+        return self.kernel.evaluate_point(logdensity_fn, position, has_aux)
 
     def check_dim(self, dim: int) -> None:
         self.kernel.check_dim(dim)

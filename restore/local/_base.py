@@ -11,7 +11,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, PRNGKeyArray
 
-from .._point import Point
+from .._point import Point, evaluate
 from .._random import log_uniform
 
 
@@ -34,10 +34,23 @@ class AbstractLocalKernel(eqx.Module):
     (the candidate depends on the position and the key alone, not on the log density or
     its gradient: then candidates can be drawn ahead of their evaluation, along a path of
     not yet evaluated points, as `restore.speculative_steps` does) and implement both methods.
+    A kernel that needs more than the gradient at a point (`TorusH2MC`: a Hessian) sets
+    `keeps_geometry` and overrides `evaluate_point`, which samplers call for every point
+    they evaluate: what it derives there travels with the point (`Point.geometry`), so it
+    is computed once per point, not once per move from it.
     """
 
     uses_gradient: ClassVar[bool] = False
     proposes_from_position: ClassVar[bool] = False
+    keeps_geometry: ClassVar[bool] = False
+
+    def evaluate_point(
+        self, logdensity_fn: Callable[[Array], Any], position: Array, has_aux: bool = False
+    ) -> tuple[Point, Bool[Array, ""]]:
+        """The point at `position`, evaluated with what this kernel needs there: the value, the
+        gradient for a gradient-based kernel, and the kernel's `geometry` where it keeps one;
+        and whether the evaluation was invalid (as `restore.Point`'s evaluation says)."""
+        return evaluate(logdensity_fn, position, self.uses_gradient, has_aux)
 
     @abc.abstractmethod
     def propose(

@@ -19,24 +19,28 @@ The move depends on the state through `g` and `H`, so the Hastings ratio needs t
 reverse move's Gaussian, built at the candidate (its gradient and Hessian). Leaving it
 out breaks invariance (the negative control of the tests).
 
-The Hessian comes from forward differences of the exact gradients (`dim` gradient
-evaluations at each end of a move): the light-transport log densities of this library
-differentiate once, by a custom VJP, and so have no second derivative from JAX. The
-differences only shape the proposal, which the Hastings test makes exact whatever it is.
+The Hessian comes from forward differences of the exact gradients: the light-transport
+log densities of this library differentiate once, by a custom VJP, and so have no second
+derivative from JAX. The differences only shape the proposal, which the Hastings test
+makes exact whatever it is. Each point's Gaussian is built once, when the point is
+evaluated (`evaluate_point`: its value and gradient and the `dim` gradients of the
+differences in one batch), and kept with it (`Point.geometry`): it is the reverse move's
+Gaussian while the point is a candidate and the forward one's for every move from it,
+as Li et al. keep the current path's derivatives across rejected moves.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import ClassVar, NamedTuple
+from typing import Any, ClassVar, NamedTuple
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float, PRNGKeyArray
+from jaxtyping import Array, Bool, Float, PRNGKeyArray
 
-from .._point import Point
+from .._point import Point, evaluate
 from ._base import AbstractLocalKernel, LocalInfo, gradient_of, metropolis_accept
 from ._torus import wrap
 
@@ -118,8 +122,9 @@ class TorusH2MC(AbstractLocalKernel):
     into `[0, 1)`; it is accepted with the Hastings ratio of the forward and reverse
     Gaussians (each at its own end), with the nearest periodic image, exact for
     `sigma <= 0.05`. The Hessian is forward differences of the exact gradients, step
-    `difference`: a move evaluates `2 dim + 1` gradients besides the sampler's own
-    evaluation of the candidate, against none for `TorusMALA`.
+    `difference`: evaluating a point (`evaluate_point`, which samplers call for every
+    point) takes `dim + 1` gradients in one batch, where `TorusMALA` takes one, and the
+    point keeps its Gaussian (`Point.geometry`) for every move from it.
 
     Arguments:
         sigma: the bound on each step, in `(0, 0.05]` (default 0.01, as its authors run it).
@@ -131,6 +136,7 @@ class TorusH2MC(AbstractLocalKernel):
     angle: float = eqx.field(static=True)
     difference: float = eqx.field(static=True)
     uses_gradient: ClassVar[bool] = True
+    keeps_geometry: ClassVar[bool] = True
 
     def __init__(self, sigma: float = 0.01, angle: float = math.pi / 2, difference: float = 1e-3):
         sigma, angle, difference = float(sigma), float(angle), float(difference)
@@ -157,21 +163,49 @@ class TorusH2MC(AbstractLocalKernel):
         hessian = (columns - grad).T / self.difference
         return h2mc_gaussian(grad, hessian, self.sigma, self.angle)
 
+    def evaluate_point(
+        self, logdensity_fn: Callable[[Array], Any], position: Array, has_aux: bool = False
+    ) -> tuple[Point, Bool[Array, ""]]:
+        """The point at `position` with its value, gradient and proposal Gaussian (`geometry`):
+        the point and the `dim` points of the Hessian's differences in one batch of gradients."""
+        steps = self.difference * jnp.eye(position.shape[0], dtype=position.dtype)
+        rows, invalid = jax.vmap(lambda x: evaluate(logdensity_fn, x, True, has_aux))(
+            jnp.concatenate([position[None], wrap(position + steps)])
+        )
+        grads = rows.grad
+        assert grads is not None
+        point = jax.tree.map(lambda a: a[0], rows)
+        hessian = (grads[1:] - grads[0]).T / self.difference
+        return point._replace(geometry=h2mc_gaussian(grads[0], hessian, self.sigma, self.angle)), invalid[0]
+
     def propose(
         self, key: PRNGKeyArray, point: Point, logdensity_fn: Callable[[Array], Array] | None = None
     ) -> tuple[Array, Array]:
-        """The candidate and `log q(candidate -> u) - log q(u -> candidate)` (the reverse move
-        is built at the candidate, with its own gradient and Hessian)."""
-        if logdensity_fn is None:
-            raise ValueError("TorusH2MC needs the log density (its Hessian comes from differences of its gradient)")
-        grad_fn = jax.grad(logdensity_fn)
+        """The candidate and the forward move's `log q(u -> candidate)` (`accept` adds the
+        reverse move's, from the Gaussian the candidate's evaluation built).
+
+        Uses the point's own Gaussian (`Point.geometry`); a point evaluated without it gets
+        one built here, from `logdensity_fn`'s gradients."""
         u = point.position
-        forward = self.gaussian(grad_fn, u, gradient_of(point))
+        forward = point.geometry
+        if forward is None:
+            if logdensity_fn is None:
+                raise ValueError("TorusH2MC needs the log density (its Hessian comes from differences of its gradient)")
+            forward = self.gaussian(jax.grad(logdensity_fn), u, gradient_of(point))
         candidate = wrap(u + forward.sample(key))
-        backward = self.gaussian(grad_fn, candidate)
         log_forward = forward.log_density(forward.mean_move() + _centred(candidate - u - forward.mean_move()))
-        log_backward = backward.log_density(backward.mean_move() + _centred(u - candidate - backward.mean_move()))
-        return candidate, log_backward - log_forward
+        return candidate, log_forward
 
     def accept(self, key: PRNGKeyArray, point: Point, candidate: Point, aux: Array) -> tuple[Point, LocalInfo]:
-        return metropolis_accept(key, point, candidate, candidate.logdensity - point.logdensity + aux)
+        """Accept with `f(candidate) q(candidate -> u) / (f(u) q(u -> candidate))`, the reverse move's
+        Gaussian the candidate's own (`Point.geometry`, built by `evaluate_point`)."""
+        backward = candidate.geometry
+        if backward is None:
+            raise ValueError(
+                "TorusH2MC needs the candidate's Gaussian: evaluate candidates with its evaluate_point, which keeps it"
+            )
+        if point.geometry is None:  # a point evaluated without its Gaussian: the lane keeps none
+            candidate = candidate._replace(geometry=None)
+        u, y = point.position, candidate.position
+        log_backward = backward.log_density(backward.mean_move() + _centred(u - y - backward.mean_move()))
+        return metropolis_accept(key, point, candidate, candidate.logdensity - point.logdensity + log_backward - aux)

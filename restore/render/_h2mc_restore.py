@@ -14,10 +14,10 @@ class H2MCRestore(AbstractPSSRestore):
 
     Local moves draw from the Gaussian of Hessian-Hamiltonian dynamics at the current path
     (Li et al. 2015) and accept with the Hastings ratio of the forward and reverse
-    Gaussians (see `restore.local.TorusH2MC`). Each move evaluates `2 dim + 1` gradients
-    for the Hessians' differences besides the sampler's evaluation of the candidate, so a
-    step costs more than `MALARestore`'s; an equal-time comparison charges it. Estimator
-    and tour length as in `MetropolisRestore`.
+    Gaussians (see `restore.local.TorusH2MC`). Each evaluated path takes `dim` more
+    gradients for its Hessian's differences and an eigendecomposition, and keeps its
+    Gaussian for the moves from it, so a step costs more than `MALARestore`'s; an
+    equal-time comparison charges it. Estimator and tour length as in `MetropolisRestore`.
 
     Arguments:
         sigma: the bound on each move, in `(0, 0.05]` (default 0.01, as H2MC's authors run it).

@@ -18,7 +18,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
 from .._point import Point, evaluate
-from ..local import AbstractTorusMutation, TorusMetropolis
+from ..local import AbstractLocalKernel, AbstractTorusMutation, TorusMetropolis
 
 
 @runtime_checkable
@@ -173,11 +173,16 @@ def pss_logdensity(target: PSSTarget) -> Callable[[Array], tuple[Array, Array | 
     return logdensity
 
 
-def evaluate_points(target: PSSTarget, u: Float[Array, "N D"], with_grad: bool = False) -> Point:
+def evaluate_points(
+    target: PSSTarget, u: Float[Array, "N D"], with_grad: bool = False, kernel: AbstractLocalKernel | None = None
+) -> Point:
     """Evaluate a batch of points (one batch call) as the core samplers do: a `Point` of arrays
-    with the aux of `pss_logdensity` (`rgb / lum`, or an `EvaluatedPixel`), float32."""
+    with the aux of `pss_logdensity` (`rgb / lum`, or an `EvaluatedPixel`), float32; with a
+    `kernel`, with all it needs at a point (`evaluate_point`: a gradient, its `geometry`)."""
     logdensity = pss_logdensity(target)
     u = jnp.asarray(u, jnp.float32)
+    if kernel is not None:
+        return jax.vmap(lambda x: kernel.evaluate_point(logdensity, x, has_aux=True)[0])(u)
     return jax.vmap(lambda x: evaluate(logdensity, x, with_grad, has_aux=True)[0])(u)
 
 

@@ -193,22 +193,26 @@ class PSSMLT(AbstractRenderer):
         return self.mutation
 
     def init_cost(self, lanes: int) -> int:
-        return bootstrap_size(self.n_bootstrap, lanes)
+        keeps = isinstance(self.mutation, AbstractLocalKernel) and self.mutation.keeps_geometry
+        return bootstrap_size(self.n_bootstrap, lanes) + (lanes if keeps else 0)  # `init` evaluates such starts again
 
     def step_cost(self, lanes: int) -> int:
         return lanes
 
     def init(self, target, key: PRNGKeyArray, lanes: int) -> PSSMLTState:
         check_target(target, needs_gradient=self.uses_gradient)
-        self.small_step_kernel(target)  # refuses a target whose frozen coordinates the kernel would move
+        kernel = self.small_step_kernel(target)  # refuses a target whose frozen coordinates the kernel would move
         lanes = check_lanes(lanes)
         k_boot, k_pick = jax.random.split(key)
-        boot = bootstrap_points(target, k_boot, self.n_bootstrap, lanes, self.uses_gradient)
+        keeps = kernel.keeps_geometry  # then the chosen starts are evaluated again, with their geometry
+        boot = bootstrap_points(target, k_boot, self.n_bootstrap, lanes, self.uses_gradient and not keeps)
         lum = luminance(boot)
         z = jnp.mean(lum)
         z_err = jnp.std(lum) / (z * math.sqrt(lum.shape[0]))
         index = resample(k_pick, lum, lanes)
         point = jax.tree.map(lambda x: x[index], boot)
+        if keeps:
+            point = evaluate_points(target, point.position, kernel=kernel)
         i0 = jnp.zeros((), jnp.int32)
         tally = PSSMLTTally(empty_film(target.num_pixels), i0, i0, i0, i0, jnp.zeros((), jnp.float32))
         largest = jax.lax.top_k(lum, min(lum.shape[0], tail_length(lum.shape[0]) + 1))[0]
@@ -231,7 +235,7 @@ class PSSMLT(AbstractRenderer):
         small, aux = jax.vmap(lambda k, p: kernel.propose(k, p, logdensity))(lane_keys(k_small, n), x)
         fresh = jax.random.uniform(k_large, (n * d,), jnp.float32).reshape(n, d)
         large = jax.random.uniform(k_kind, (n,), jnp.float32) < self.p_large
-        y = evaluate_points(target, jnp.where(large[:, None], fresh, small), self.uses_gradient)
+        y = evaluate_points(target, jnp.where(large[:, None], fresh, small), kernel=kernel)
         accept_keys = lane_keys(k_accept, n)
         moved, info = jax.vmap(kernel.accept)(accept_keys, x, y, aux)
         if not isinstance(kernel, TorusMetropolis):  # large steps: Metropolis on the luminance

@@ -396,7 +396,7 @@ class AbstractPSSRestore(AbstractRenderer):
         k_boot, k_pick, k_start = jax.random.split(key, 3)
         z = z_err = jnp.asarray(jnp.nan, jnp.float32)
         if self._bootstraps:
-            boot = bootstrap_points(target, k_boot, self.n_bootstrap, lanes, self.uses_gradient)
+            boot = bootstrap_points(target, k_boot, self.n_bootstrap, lanes)  # values alone: init evaluates the starts
             lum = luminance(boot)
             z = jnp.mean(lum)
             z_err = jnp.std(lum) / (z * math.sqrt(lum.shape[0]))

@@ -276,10 +276,10 @@ def pixel_law_p_value(kernel, n=8192, moves=30):
             k_move, k_accept = jax.random.split(jax.random.fold_in(key, i))
             keys_move, keys_accept = jax.random.split(k_move, n), jax.random.split(k_accept, n)
             candidates, aux = jax.vmap(lambda k, p: kernel.propose(k, p, logdensity))(keys_move, x)
-            y = rr.evaluate_points(TARGET, candidates, with_grad=True)
+            y = rr.evaluate_points(TARGET, candidates, kernel=kernel)
             return jax.vmap(lambda k, p, q, a: kernel.accept(k, p, q, a)[0])(keys_accept, x, y, aux)
 
-        start = rr.evaluate_points(TARGET, TARGET.sample(jax.random.fold_in(key, 10**6), n), with_grad=True)
+        start = rr.evaluate_points(TARGET, TARGET.sample(jax.random.fold_in(key, 10**6), n), kernel=kernel)
         return TARGET.pixel_index(jax.lax.fori_loop(0, moves, step, start).position)
 
     counts = np.bincount(np.asarray(final_pixels(jax.random.key(0))), minlength=64)

@@ -1,5 +1,6 @@
 """H2MC's proposal: the Gaussian of Hessian-Hamiltonian dynamics against a numerical integration of
-those dynamics, its density against SciPy's, its draws against its moments, and its input checks.
+those dynamics, its density against SciPy's, its draws against its moments, its input checks, and
+each point's Gaussian built once, when the point is evaluated, and kept for the moves from it.
 (Its invariance, with a negative control, is tested on the analytic image: tests/integration/test_render.py.)"""
 
 import math
@@ -10,8 +11,10 @@ import numpy as np
 import pytest
 from scipy import integrate, stats
 
+import restore
 from restore import Point
 from restore.local import TorusH2MC, h2mc_gaussian
+from restore.regeneration import UniformTorus
 
 
 def flow(lam: float, g: float, momentum: float, time: float) -> float:
@@ -96,3 +99,78 @@ def test_the_kernel_refuses_bad_settings_and_a_missing_log_density():
     point = Point(jnp.array([0.2, 0.3]), jnp.array(0.0), jnp.zeros(2), None)
     with pytest.raises(ValueError, match="needs the log density"):
         TorusH2MC().propose(jax.random.key(0), point, None)
+
+
+A = jnp.array([[30.0, 5.0, 0.0], [0.0, 10.0, 2.0], [1.0, 0.0, 20.0]])
+CENTRE = jnp.array([0.5, 0.45, 0.55])
+
+
+def quadratic(u):
+    return -0.5 * jnp.sum((A @ (u - CENTRE)) ** 2)
+
+
+def counted_quadratic(rows: list):
+    """`quadratic` whose value and gradient come from a host callback that records how many
+    points each call evaluates (as a renderer's tracer is called), differentiable once."""
+
+    def host(u):
+        u = np.asarray(u, np.float64)
+        rows.append(u.reshape(-1, 3).shape[0])
+        r = (u - np.asarray(CENTRE)) @ np.asarray(A).T
+        return (-0.5 * np.sum(r**2, -1)).astype(np.float32), (-(r @ np.asarray(A))).astype(np.float32)
+
+    def both(u):
+        shapes = (jax.ShapeDtypeStruct(u.shape[:-1], jnp.float32), jax.ShapeDtypeStruct(u.shape, jnp.float32))
+        return jax.pure_callback(host, shapes, u, vmap_method="expand_dims")
+
+    @jax.custom_vjp
+    def f(u):
+        return both(u)[0]
+
+    def fwd(u):
+        value, grad = both(u)
+        return value, grad
+
+    f.defvjp(fwd, lambda grad, cotangent: (cotangent * grad,))
+    return f
+
+
+def test_evaluating_a_point_builds_its_gaussian_in_one_batch_and_moves_reuse_it():
+    """`evaluate_point` gives the value, the gradient and the Gaussian `gaussian` builds, from
+    one call of the log density's gradients (`dim + 1` points); a jump-Restore step then
+    evaluates the candidate alone, once: the current point's Gaussian travels with the state."""
+    kernel = TorusH2MC(0.02, difference=1e-4)
+    u = jnp.array([0.52, 0.47, 0.5], jnp.float32)
+    rows: list = []
+    point, invalid = jax.jit(lambda x: kernel.evaluate_point(counted_quadratic(rows), x))(u)
+    assert rows == [4] and not bool(invalid)
+    np.testing.assert_allclose(float(point.logdensity), float(quadratic(u)), rtol=1e-5)
+    np.testing.assert_allclose(np.asarray(point.grad), np.asarray(jax.grad(quadratic)(u)), rtol=1e-4)
+    built = kernel.gaussian(jax.grad(quadratic), u, jax.grad(quadratic)(u))
+    covariance = lambda g: g.basis @ jnp.diag(1 / g.precision) @ g.basis.T  # noqa: E731
+    np.testing.assert_allclose(np.asarray(covariance(point.geometry)), np.asarray(covariance(built)), rtol=2e-3)
+
+    rows.clear()
+    sampler = restore.JumpRestore(counted_quadratic(rows), kernel, UniformTorus(3), log_rate=-3.0)
+    state = jax.jit(lambda k, x: sampler.init(k, x))(jax.random.key(0), u)
+    assert rows == [4] and state.geometry is not None
+    rows.clear()
+    new_state, _ = jax.jit(lambda k, s: sampler.step(k, s))(jax.random.key(1), state)
+    assert rows == [4]  # the candidate (or a fresh tour start) and its differences; nothing at the current point
+    assert jax.tree.structure(new_state) == jax.tree.structure(state)
+
+
+def test_h2mc_refuses_a_candidate_evaluated_without_its_gaussian():
+    kernel = TorusH2MC()
+    u = jnp.array([0.5, 0.45, 0.55])
+    point, _ = kernel.evaluate_point(quadratic, u)
+    candidate, aux = kernel.propose(jax.random.key(0), point, quadratic)
+    plain = restore.Point(candidate, quadratic(candidate), jax.grad(quadratic)(candidate), None)
+    with pytest.raises(ValueError, match="candidate's Gaussian"):
+        kernel.accept(jax.random.key(1), point, plain, aux)
+
+
+def test_two_phases_with_different_h2mc_kernels_are_refused():
+    dynamics = (restore.dynamics.Jump(TorusH2MC(0.01)), restore.dynamics.Jump(TorusH2MC(0.02)))
+    with pytest.raises(ValueError, match="geometry"):
+        restore.Restore(quadratic, dynamics, restore.transfer.Independent(UniformTorus(3)), tour_length=(1.0, 1.0))
