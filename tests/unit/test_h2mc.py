@@ -174,3 +174,20 @@ def test_two_phases_with_different_h2mc_kernels_are_refused():
     dynamics = (restore.dynamics.Jump(TorusH2MC(0.01)), restore.dynamics.Jump(TorusH2MC(0.02)))
     with pytest.raises(ValueError, match="geometry"):
         restore.Restore(quadratic, dynamics, restore.transfer.Independent(UniformTorus(3)), tour_length=(1.0, 1.0))
+
+
+def test_mixture_mh_carries_the_h2mc_gaussian_in_its_state():
+    """`MixtureMH` evaluates its points with the kernel too: after local and large steps, accepted
+    and rejected, the state holds the Gaussian of its own position."""
+    kernel = TorusH2MC(0.02)
+    mh = restore.MixtureMH(quadratic, kernel, UniformTorus(3), large_step_probability=0.5)
+    state = jax.jit(lambda k: mh.init(k))(jax.random.key(0))
+    step = jax.jit(lambda k, s: mh.step(k, s))
+    accepted = 0
+    for i in range(12):
+        new_state, info = step(jax.random.key(i + 1), state)
+        assert jax.tree.structure(new_state) == jax.tree.structure(state)
+        state, accepted = new_state, accepted + int(info.accepted)
+        own = kernel.evaluate_point(quadratic, state.position)[0].geometry
+        np.testing.assert_allclose(np.asarray(state.geometry.mean_move()), np.asarray(own.mean_move()), rtol=1e-6, atol=1e-9)
+    assert 0 < accepted < 12
