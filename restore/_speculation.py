@@ -223,7 +223,6 @@ def speculative_steps(
             propose_keys, own_point
         )
     candidates = candidates.astype(states.position.dtype)
-    with_grad = sampler.uses_gradient
     evaluated, invalid = jax.vmap(sampler.evaluate_point)(candidates)
     _, invalid, _, candidate_log_kill, _ = jax.vmap(lambda p, bad: sampler.kill_terms(0, p, bad, log_rates))(
         evaluated, invalid
@@ -236,7 +235,7 @@ def speculative_steps(
     current = Point(
         position.astype(candidates.dtype),  # the held positions the proposals started from
         held_value(held.logdensity, evaluated.logdensity),
-        None if not with_grad else held_value(held.logdensity_grad, evaluated.grad),
+        jax.tree.map(held_value, held.logdensity_grad, evaluated.grad),
         jax.tree.map(held_value, held.aux, evaluated.aux),
         jax.tree.map(held_value, held.geometry, evaluated.geometry),
     )
@@ -264,11 +263,10 @@ def speculative_steps(
         position=put(states.position, end.position),
         logdensity=put(states.logdensity, end.logdensity),
         log_kill_rate=put(states.log_kill_rate, end_log_kill),
+        logdensity_grad=jax.tree.map(put, states.logdensity_grad, end.grad),
         aux=jax.tree.map(put, states.aux, end.aux),
         geometry=jax.tree.map(put, states.geometry, end.geometry),
     )
-    if with_grad:
-        new_states = new_states._replace(logdensity_grad=put(states.logdensity_grad, end.grad))
     new_active = active.at[target].set(~killed, mode="drop")
 
     info = StepInfo(

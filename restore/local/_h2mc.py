@@ -148,35 +148,29 @@ class TorusH2MC(AbstractLocalKernel):
             raise ValueError(f"TorusH2MC difference must lie in (0, 0.01], got {difference!r}")
         self.sigma, self.angle, self.difference = sigma, angle, difference
 
-    def gaussian(
-        self, grad_fn: Callable[[Array], Array], u: Float[Array, " d"], grad: Float[Array, " d"] | None = None
-    ) -> H2MCGaussian:
-        """The proposal's Gaussian at `u` (gradient `grad`, or, when not given, evaluated in
-        one batch with the Hessian's differences: one call of a tracer instead of two;
-        `grad_fn` gives the gradient anywhere)."""
-        steps = self.difference * jnp.eye(u.shape[0], dtype=u.dtype)
-        if grad is None:
-            rows = jax.vmap(grad_fn)(jnp.concatenate([u[None], wrap(u + steps)]))
-            grad, columns = rows[0], rows[1:]
-        else:
-            columns = jax.vmap(grad_fn)(wrap(u + steps))  # row j: the gradient a step along axis j away
-        hessian = (columns - grad).T / self.difference
-        return h2mc_gaussian(grad, hessian, self.sigma, self.angle)
+    def gaussian(self, grad_fn: Callable[[Array], Array], u: Float[Array, " d"], grad: Float[Array, " d"]) -> H2MCGaussian:
+        """The proposal's Gaussian at `u` (gradient `grad`; `grad_fn` gives the gradient anywhere)."""
+        return self._from_gradients(grad, jax.vmap(grad_fn)(self._probes(u)))
 
     def evaluate_point(
         self, logdensity_fn: Callable[[Array], Any], position: Array, has_aux: bool = False
     ) -> tuple[Point, Bool[Array, ""]]:
         """The point at `position` with its value, gradient and proposal Gaussian (`geometry`):
         the point and the `dim` points of the Hessian's differences in one batch of gradients."""
-        steps = self.difference * jnp.eye(position.shape[0], dtype=position.dtype)
         rows, invalid = jax.vmap(lambda x: evaluate(logdensity_fn, x, True, has_aux))(
-            jnp.concatenate([position[None], wrap(position + steps)])
+            jnp.concatenate([position[None], self._probes(position)])
         )
-        grads = rows.grad
-        assert grads is not None
         point = jax.tree.map(lambda a: a[0], rows)
-        hessian = (grads[1:] - grads[0]).T / self.difference
-        return point._replace(geometry=h2mc_gaussian(grads[0], hessian, self.sigma, self.angle)), invalid[0]
+        assert rows.grad is not None and point.grad is not None
+        return point._replace(geometry=self._from_gradients(point.grad, rows.grad[1:])), invalid[0]
+
+    def _probes(self, u: Float[Array, " d"]) -> Float[Array, "d d"]:
+        """Row `j`: `u` a step `difference` along axis `j`, on the torus."""
+        return wrap(u + self.difference * jnp.eye(u.shape[0], dtype=u.dtype))
+
+    def _from_gradients(self, grad: Float[Array, " d"], columns: Float[Array, "d d"]) -> H2MCGaussian:
+        """The Gaussian from the gradient at `u` and those at `_probes(u)` (row `j`: a step along axis `j`)."""
+        return h2mc_gaussian(grad, (columns - grad).T / self.difference, self.sigma, self.angle)
 
     def propose(
         self, key: PRNGKeyArray, point: Point, logdensity_fn: Callable[[Array], Array] | None = None

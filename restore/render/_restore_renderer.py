@@ -449,14 +449,6 @@ class AbstractPSSRestore(AbstractRenderer):
         )
         return state._replace(**_end_tours(state, duration, killed))
 
-    @property
-    def speculates(self) -> bool:
-        """Open tours are finished by speculative steps (`restore.speculative_steps`): a lane
-        runs many events per batched call, along a tree shaped by its acceptance where the
-        local kernel proposes from the position alone, along the reject path where its
-        candidate needs the gradient (MALA, H2MC)."""
-        return self.finish_tours
-
     def smallest_finishing_batch(self) -> int:
         """256 where trees fill a batch however few tours are open (Metropolis moves); 8 where
         a lane speculates along the reject path alone (MALA, H2MC), whose events per call
@@ -464,9 +456,11 @@ class AbstractPSSRestore(AbstractRenderer):
         return 256 if self.kernel.proposes_from_position else 8
 
     def finishing_step(self, target, key: PRNGKeyArray, state: RestoreRenderState, slots: int) -> RestoreRenderState:
-        """Advance the open tours (no new tour starts) by speculative steps (`speculates`): one
-        batched evaluation of `slots` candidate events, each open lane a tree of `slots // open`
-        of them, shaped by its tour's acceptance so far (the reject path for MALA and H2MC)."""
+        """Advance the open tours (no new tour starts) by speculative steps
+        (`restore.speculative_steps`): one batched evaluation of `slots` candidate events, each
+        open lane a tree of `slots // open` of them, shaped by its tour's acceptance so far where
+        the local kernel proposes from the position alone, the reject path where its candidate
+        needs the gradient (MALA, H2MC)."""
         sampler = self.sampler(target, state.params)
         guess = (state.tour_accepted + 1.0) / (state.tour_moves + 2.0)  # this tour's acceptance so far
         run = speculative_steps(sampler, key, state.lanes, state.in_tour, slots, guess)

@@ -470,7 +470,6 @@ def test_a_finishing_step_moves_only_open_tours(renderer):
     open_lanes = np.zeros(16, bool)
     open_lanes[[1, 5, 6, 12]] = True
     state = renderer.stop_starting(state._replace(in_tour=jnp.asarray(open_lanes), tour_moves=jnp.arange(16, dtype=jnp.int32)))
-    assert renderer.speculates
     after, steps = jax.jit(lambda k, s: renderer.finish(TARGET, k, s, 1, 8))(jax.random.key(1), state)
     assert int(steps) == 1
     closed = ~open_lanes
