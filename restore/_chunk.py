@@ -55,14 +55,21 @@ def run_steps(
 class _Slots(NamedTuple):
     """The loop of `run_open_lanes`."""
 
-    lanes: Any  # every lane's part of the carry (up to date for the lanes not in a slot)
+    lanes: Any  # every lane's part of the carry (up to date for the lanes not held by a slot)
     shared: Any  # the carry's part that all lanes add to (histograms, tail buffers)
-    taken: Array  # steps each lane has taken (up to date for the lanes not in a slot)
+    taken: Array  # steps each lane has taken (up to date for the lanes not held by a slot)
     slot_lane: Array  # the lane each slot holds
     slot_lanes: Any  # the slots' lanes' parts of the carry
     slot_steps: Array  # steps the slot's lane has taken
     live: Array  # the slot holds an open lane
+    held: Array  # the slot holds a lane not yet written back (open, or done and waiting)
     next: Array  # queue position of the next lane to take
+
+
+#: A batch of slots writes its done lanes back and takes new ones once this share of its
+#: slots is done (or none is open): a gather and scatter of every part of the carry per
+#: refill, not per step, for a few idle steps of the done slots.
+REFILL_SHARE = 8
 
 
 def run_open_lanes(
@@ -79,15 +86,18 @@ def run_open_lanes(
     `restore.sample` finishes its open tours after the budget.
 
     A batch of `width` slots each holds an open lane (in lane order); every iteration steps
-    the batch, and a lane whose work ended (or that has taken `limit` steps) goes back to its
-    place in `lanes` while its slot takes the next open lane. So a few long tours cost a step
-    of the batch, not of every lane. Runs at most `iterations` iterations (`run_steps`); the
-    lanes still in a slot then are written back, to go on in a later call.
+    the batch. A lane whose work ended (or that has taken `limit` steps) waits in its slot,
+    unchanged, until `width / REFILL_SHARE` slots are done or none is open; then the done
+    lanes go back to their places in `lanes` and their slots take the next open lanes. So a
+    few long tours cost a step of the batch, not of every lane. Runs at most `iterations`
+    iterations (`run_steps`); the lanes still held by a slot then are written back, to go on
+    in a later call. How the steps fall into refills and calls changes no lane's steps.
 
     Arguments:
         step: `step(slot_lanes, shared, slot_lane, slot_steps, live, iteration)` steps the
-            slots' lanes (`live`: the slots that hold an open lane; the others must not add to
-            `shared`) and returns `(slot_lanes, shared, ended)`.
+            slots' lanes (`live`: the slots that hold an open lane; the others must keep their
+            lanes' parts as they are and not add to `shared`) and returns
+            `(slot_lanes, shared, ended)`.
         lanes: each lane's part of the carry (a pytree with a leading lane axis).
         shared: what every lane adds to (passed through `step`).
         open_: the lanes to step.
@@ -106,29 +116,38 @@ def run_open_lanes(
     take = lambda tree, index: jax.tree.map(lambda a: a[index], tree)  # noqa: E731
     slots = jnp.arange(width, dtype=jnp.int32)
     first = jnp.minimum(queue[jnp.minimum(slots, num_lanes - 1)], num_lanes - 1)
+    enough = max(1, width // REFILL_SHARE)
+
+    def write_back(loop: _Slots, which: Array) -> tuple[Any, Array]:
+        home = jnp.where(which, loop.slot_lane, num_lanes)  # out of range: not written
+        put = lambda full, part: full.at[home].set(part, mode="drop")  # noqa: E731
+        return jax.tree.map(put, loop.lanes, loop.slot_lanes), put(loop.taken, loop.slot_steps)
+
+    def refill(loop: _Slots) -> _Slots:
+        done = loop.held & ~loop.live
+        lanes, taken = write_back(loop, done)  # the done lanes go back to their places...
+        position = loop.next + jnp.cumsum(done, dtype=jnp.int32) - 1  # ...and their slots take the next open lanes
+        fresh = done & (position < total)
+        new_lane = jnp.where(fresh, queue[jnp.minimum(position, num_lanes - 1)], loop.slot_lane)
+        pick = lambda full, part: jnp.where(fresh.reshape((-1,) + (1,) * (part.ndim - 1)), full[new_lane], part)  # noqa: E731
+        return _Slots(
+            lanes, loop.shared, taken, new_lane, jax.tree.map(pick, lanes, loop.slot_lanes),
+            jnp.where(fresh, taken[new_lane], loop.slot_steps), loop.live | fresh, loop.live | fresh,
+            loop.next + jnp.sum(done, dtype=jnp.int32),
+        )  # fmt: skip
 
     def body(i: Array, loop: _Slots) -> _Slots:
         slot_lanes, shared, ended = step(loop.slot_lanes, loop.shared, loop.slot_lane, loop.slot_steps, loop.live, i)
         slot_steps = loop.slot_steps + loop.live.astype(jnp.int32)
-        done = loop.live & (ended | (slot_steps >= limit))  # the work ended, or the lane ran out of steps
-        # the lanes that are done go back to their places...
-        home = jnp.where(done, loop.slot_lane, num_lanes)  # out of range: not written
-        put = lambda full, part: full.at[home].set(part, mode="drop")  # noqa: E731
-        lanes = jax.tree.map(put, loop.lanes, slot_lanes)
-        taken = put(loop.taken, slot_steps)
-        # ...and their slots take the next open lanes of the queue
-        position = loop.next + jnp.cumsum(done, dtype=jnp.int32) - 1
-        refill = done & (position < total)
-        new_lane = jnp.where(refill, queue[jnp.minimum(position, num_lanes - 1)], loop.slot_lane)
-        fresh = lambda full, part: jnp.where(refill.reshape((-1,) + (1,) * (part.ndim - 1)), full[new_lane], part)  # noqa: E731
-        return _Slots(
-            lanes, shared, taken, new_lane, jax.tree.map(fresh, lanes, slot_lanes), jnp.where(refill, taken[new_lane], slot_steps),
-            (loop.live & ~done) | refill, loop.next + jnp.sum(done, dtype=jnp.int32),
-        )  # fmt: skip
+        live = loop.live & ~(ended | (slot_steps >= limit))  # the work ended, or the lane ran out of steps
+        loop = loop._replace(shared=shared, slot_lanes=slot_lanes, slot_steps=slot_steps, live=live)
+        done = jnp.sum(loop.held & ~live, dtype=jnp.int32)
+        due = (done >= enough) | ((done > 0) & ~jnp.any(live))
+        return jax.lax.cond(due & (loop.next < total), refill, lambda loop: loop, loop)
 
     zero = jnp.zeros_like(total)  # varies with the lanes, as the loop's results do (under `shard_map`)
-    start = _Slots(lanes, shared, taken, first, take(lanes, first), taken[first], slots < total, jnp.minimum(total, width) + zero)
+    held = slots < total
+    start = _Slots(lanes, shared, taken, first, take(lanes, first), taken[first], held, held, jnp.minimum(total, width) + zero)
     end, iterations_run = run_steps(body, start, iterations, lambda loop: jnp.any(loop.live))
-    home = jnp.where(end.live, end.slot_lane, num_lanes)  # the lanes still in a slot go back to their places
-    put = lambda full, part: full.at[home].set(part, mode="drop")  # noqa: E731
-    return jax.tree.map(put, end.lanes, end.slot_lanes), end.shared, put(end.taken, end.slot_steps), iterations_run
+    lanes, taken = write_back(end, end.held)  # the lanes still held by a slot go back to their places
+    return lanes, end.shared, taken, iterations_run
