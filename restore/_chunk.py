@@ -7,9 +7,13 @@ length, and, when finishing open tours, only while some tour is open. `restore.s
 chunks and narrow finishing batch (`_run_loop`) and a renderer's chunks and finishing
 (`restore.render`) all run on `run_steps`; what differs is their step and their carry.
 
-After the budget, `restore.sample` finishes its open tours by `run_open_lanes` (a narrow
-batch of slots, each holding an open lane until its tour ends); Restore renders run theirs
-by speculative steps (`restore.speculative_steps`) on `run_steps`.
+After the budget, `restore.sample` and the Restore renders finish their open tours by
+`run_open_lanes`, the one finishing procedure: a narrow batch of slots, each holding an
+open lane until its tour ends. What a slot's step is differs: a plain step of the sampler
+(each lane's `j`-th finishing step with its own key, so the result does not depend on the
+batch), and for a render speculative steps (`restore.speculative_steps`: the batch's
+evaluations shared among its open lanes, several events of a tour per call once fewer
+lanes are open than slots).
 """
 
 from __future__ import annotations

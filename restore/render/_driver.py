@@ -176,8 +176,9 @@ class _RenderRun:
     tours do not cost a full batch per step: the smallest of `finishing_rungs(lanes)` (a
     quarter of the lanes, at least 64, then quarters of that down to the renderer's
     `smallest_finishing_batch()`) that holds one point per open tour, chosen again every
-    `_FINISHING_CALL` steps. Restore renders run their open tours by speculative steps
-    there (`restore.speculative_steps`). The finishing programs are
+    `_FINISHING_CALL` steps. Restore renders run their open tours in the core's narrow
+    batch (`restore._chunk.run_open_lanes`, as `restore.sample` does) by speculative steps
+    (`restore.speculative_steps`). The finishing programs are
     compiled ahead too. Finishing comes on top of the budget: its steps and time are in
     `finishing_steps`, `finishing_seconds`, `evaluations` and `seconds`.
     """

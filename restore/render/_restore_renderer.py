@@ -82,7 +82,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
-from .._chunk import run_steps
+from .._chunk import run_open_lanes
 from .._exceedances import Exceedances, init_exceedances, largest, offer
 from .._jump_restore import JumpRestore
 from .._pareto import pareto_k
@@ -213,11 +213,13 @@ def _add_events(tally, target, info, counted, log_kill_rate, moves, starting, ev
     )
 
 
-def _end_tours(state, duration: Float[Array, " N"], ended: Bool[Array, " N"]) -> dict[str, Any]:
+def _end_tours(state, duration: Float[Array, " N"], ended: Bool[Array, " N"], lane: Int[Array, " N"] | None = None) -> dict[str, Any]:
     """The fields of `state` after the counted tours that `ended` (of `duration`, their
     events up to the last one included) are offered to the buffer of the longest tours
-    and added to the duration sums; their lanes' running durations restart at 0."""
-    lane = jnp.arange(duration.shape[0], dtype=jnp.int32)
+    and added to the duration sums; their lanes' running durations restart at 0. `lane`:
+    the lanes' indices in the render (default: `0, ..., N - 1`)."""
+    if lane is None:
+        lane = jnp.arange(duration.shape[0], dtype=jnp.int32)
     batch = max(32, duration.shape[0] // 4)
     tails = offer(state.tails, duration[:, None], lane, ended, 0, batch)
     finished = jnp.where(ended, duration, 0.0)
@@ -225,6 +227,23 @@ def _end_tours(state, duration: Float[Array, " N"], ended: Bool[Array, " N"]) ->
         duration=state.tally.duration + jnp.sum(finished), duration_sq=state.tally.duration_sq + jnp.sum(finished**2)
     )
     return dict(tails=tails, tour_duration=jnp.where(ended, 0.0, duration), tally=tally)
+
+
+class _OpenTours(NamedTuple):
+    """The per-lane part of a `RestoreRenderState` that finishing moves between lanes and slots."""
+
+    lanes: RestoreState
+    tour_moves: Int[Array, " N"]
+    tour_accepted: Int[Array, " N"]
+    tour_duration: Float[Array, " N"]
+    in_tour: Bool[Array, " N"]
+
+
+class _Ending(NamedTuple):
+    """What `_end_tours` reads and writes besides the durations: the shared part."""
+
+    tails: Exceedances
+    tally: RestoreTally
 
 
 @dataclasses.dataclass(frozen=True)
@@ -455,33 +474,37 @@ class AbstractPSSRestore(AbstractRenderer):
         are about one over the acceptance rate, however long the chain."""
         return 256 if self.kernel.proposes_from_position else 8
 
-    def finishing_step(self, target, key: PRNGKeyArray, state: RestoreRenderState, slots: int) -> RestoreRenderState:
-        """Advance the open tours (no new tour starts) by speculative steps
-        (`restore.speculative_steps`): one batched evaluation of `slots` candidate events, each
-        open lane a tree of `slots // open` of them, shaped by its tour's acceptance so far where
-        the local kernel proposes from the position alone, the reject path where its candidate
-        needs the gradient (MALA, H2MC)."""
-        sampler = self.sampler(target, state.params)
-        guess = (state.tour_accepted + 1.0) / (state.tour_moves + 2.0)  # this tour's acceptance so far
-        run = speculative_steps(sampler, key, state.lanes, state.in_tour, slots, guess)
-        moves = state.tour_moves[run.lane] + run.level
+    def finishing_step(
+        self, target, key: PRNGKeyArray, params: RestoreParams, tours: _OpenTours, shared: _Ending, lane: Int[Array, " S"],
+        live: Bool[Array, " S"],
+    ) -> tuple[_OpenTours, _Ending, Bool[Array, " S"]]:
+        """Advance the `live` open tours of a batch of `S` lanes (`lane`: their indices in the
+        render) by speculative steps (`restore.speculative_steps`): one batched evaluation of
+        `S` candidate events, each open lane a tree of `S // open` of them, shaped by its tour's
+        acceptance so far where the local kernel proposes from the position alone, the reject
+        path where its candidate needs the gradient (MALA, H2MC). The other lanes keep their
+        part as it is. Returns the batch's part, the shared tally and tail buffer, and the
+        lanes whose tour ended."""
+        sampler = self.sampler(target, params)
+        guess = (tours.tour_accepted + 1.0) / (tours.tour_moves + 2.0)  # this tour's acceptance so far
+        slots = live.shape[0]
+        run = speculative_steps(sampler, key, tours.lanes, live, slots, guess)
+        moves = tours.tour_moves[run.lane] + run.level
         tally = _add_events(
-            state.tally, target, run.info, run.valid, run.log_kill_rate, moves, jnp.zeros((), bool),
+            shared.tally, target, run.info, run.valid, run.log_kill_rate, moves, jnp.zeros((), bool),
             jnp.sum(run.valid, dtype=jnp.int32),
         )
-        n = state.tour_moves.shape[0]
-        at_last = jnp.where(run.last, run.lane, n)
-        tour_moves = state.tour_moves.at[at_last].set(jnp.where(run.info.regenerated, 0, moves + 1), mode="drop")
+        at_last = jnp.where(run.last, run.lane, slots)
+        tour_moves = tours.tour_moves.at[at_last].set(jnp.where(run.info.regenerated, 0, moves + 1), mode="drop")
         accepted = run.info.accepted.astype(jnp.int32)
-        tour_accepted = state.tour_accepted.at[jnp.where(run.valid, run.lane, n)].add(accepted, mode="drop")
-        tour_accepted = tour_accepted.at[jnp.where(run.last & run.info.regenerated, run.lane, n)].set(0, mode="drop")
+        tour_accepted = tours.tour_accepted.at[jnp.where(run.valid, run.lane, slots)].add(accepted, mode="drop")
+        tour_accepted = tour_accepted.at[jnp.where(run.last & run.info.regenerated, run.lane, slots)].set(0, mode="drop")
         held = jnp.where(run.valid, run.info.expected_holding_time, 0.0)
-        duration = state.tour_duration.at[jnp.where(run.valid, run.lane, n)].add(held, mode="drop")
-        ended = state.in_tour & ~run.active
-        state = state._replace(
-            lanes=run.states, tour_moves=tour_moves, tour_accepted=tour_accepted, in_tour=run.active, tally=tally
-        )
-        return state._replace(**_end_tours(state, duration, ended))
+        duration = tours.tour_duration.at[jnp.where(run.valid, run.lane, slots)].add(held, mode="drop")
+        ended = live & ~run.active
+        fields = _end_tours(_Ending(shared.tails, tally), duration, ended, lane)
+        tours = _OpenTours(run.states, tour_moves, tour_accepted, fields["tour_duration"], tours.in_tour & ~ended)
+        return tours, _Ending(fields["tails"], fields["tally"]), ended
 
     def open_tours(self, state: RestoreRenderState) -> int:
         """Lanes whose counted tour is still running (host-side): `finish` runs them to their end."""
@@ -492,17 +515,29 @@ class AbstractPSSRestore(AbstractRenderer):
         return state._replace(starting=jnp.zeros_like(state.starting))
 
     def finish(self, target, key: PRNGKeyArray, state: RestoreRenderState, max_steps=None, slots=None):
-        """With complete tours: start no new tour and run every open tour to its end, each
-        step one batched evaluation of `slots` points (default: the lanes) shared among the
-        open tours by speculative steps (`finishing_step`); at most `max_steps` steps if
-        given. Returns the state and the steps taken."""
+        """With complete tours: start no new tour and run every open tour to its end in the
+        core's narrow batch (`restore._chunk.run_open_lanes`, which `restore.sample` finishes
+        its tours with): `slots` slots (default: the lanes), each holding an open lane, and
+        every step one batched evaluation of `slots` points shared among the open lanes held
+        (`finishing_step`: speculative steps). At most `max_steps` steps if given. Returns the
+        state and the steps taken."""
         if not self.finish_tours:
             return state, jnp.zeros((), jnp.int32)
         lanes = state.tour_moves.shape[0]
         slots = lanes if slots is None else min(int(slots), lanes)
         limit = jnp.iinfo(jnp.int32).max if max_steps is None else max_steps
-        step = lambda i, s: self.finishing_step(target, jax.random.fold_in(key, i), s, slots)  # noqa: E731
-        return run_steps(step, self.stop_starting(state), limit, lambda s: jnp.any(s.in_tour))
+        state = self.stop_starting(state)
+
+        def step(tours, shared, lane, _, live, i):
+            return self.finishing_step(target, jax.random.fold_in(key, i), state.params, tours, shared, lane, live)
+
+        tours = _OpenTours(state.lanes, state.tour_moves, state.tour_accepted, state.tour_duration, state.in_tour)
+        shared = _Ending(state.tails, state.tally)
+        never = jnp.iinfo(jnp.int32).max  # a lane may step until its tour ends; the steps are capped by `limit`
+        tours, shared, _, steps = run_open_lanes(
+            step, tours, shared, state.in_tour, jnp.zeros(lanes, jnp.int32), never, limit, slots
+        )
+        return state._replace(**tours._asdict(), tails=shared.tails, tally=shared.tally), steps
 
     def scale(self, target, params: RestoreParams, tally: RestoreTally):
         """`W H c / N` (complete tours; `N` = tours started = lanes + kills while starting)
