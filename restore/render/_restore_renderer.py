@@ -525,7 +525,8 @@ class AbstractPSSRestore(AbstractRenderer):
             return state, jnp.zeros((), jnp.int32)
         lanes = state.tour_moves.shape[0]
         slots = lanes if slots is None else min(int(slots), lanes)
-        limit = jnp.iinfo(jnp.int32).max if max_steps is None else max_steps
+        forever = jnp.iinfo(jnp.int32).max
+        iterations = forever if max_steps is None else max_steps  # steps of the batch
         state = self.stop_starting(state)
 
         def step(tours, shared, lane, _, live, i):
@@ -533,9 +534,9 @@ class AbstractPSSRestore(AbstractRenderer):
 
         tours = _OpenTours(state.lanes, state.tour_moves, state.tour_accepted, state.tour_duration, state.in_tour)
         shared = _Ending(state.tails, state.tally)
-        never = jnp.iinfo(jnp.int32).max  # a lane may step until its tour ends; the steps are capped by `limit`
+        # a lane steps until its tour ends (no cap of its own); the call stops after `iterations`
         tours, shared, _, steps = run_open_lanes(
-            step, tours, shared, state.in_tour, jnp.zeros(lanes, jnp.int32), never, limit, slots
+            step, tours, shared, state.in_tour, jnp.zeros(lanes, jnp.int32), forever, iterations, slots
         )
         return state._replace(**tours._asdict(), tails=shared.tails, tally=shared.tally), steps
 
